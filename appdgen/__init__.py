@@ -1,0 +1,6 @@
+"""appdgen: self-labelled data for learning camera miscalibration detection."""
+from appdgen.calibration import PARAMS, Calibration
+from appdgen.errors import AppdgenError
+
+__version__ = "0.1.0"
+__all__ = ["AppdgenError", "Calibration", "PARAMS", "__version__"]

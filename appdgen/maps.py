@@ -1,0 +1,41 @@
+"""Rectification maps M̂: for each output pixel, the raw-image position (pixels) to sample."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from appdgen.calibration import Calibration
+from appdgen.crop import Crop, check_output_size, valid_region
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """A calibration's crop R, output camera matrix K̂ (pixels) and float32 maps M̂ at one output size."""
+
+    calib: Calibration
+    crop: Crop
+    new_camera_matrix: np.ndarray
+    map_x: np.ndarray
+    map_y: np.ndarray
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """Output size (width, height) in pixels."""
+        return (self.map_x.shape[1], self.map_x.shape[0])
+
+
+def rectify(calib: Calibration, size: tuple[int, int] | None = None, crop: Crop | None = None) -> Rectification:
+    """Crop R, K̂ and maps M̂ at an output size (default: raw size), computed at that size, never resized."""
+    size = check_output_size(calib, size or calib.size)
+    crop = crop or valid_region(calib)
+    new_k = crop.camera_matrix(size)
+    map_x, map_y = cv2.initUndistortRectifyMap(calib.K, calib.D, None, new_k, size, cv2.CV_32FC1)
+    return Rectification(calib, crop, new_k, map_x, map_y)
+
+
+def rectification_maps(calib: Calibration, size: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(map_x, map_y): float32 raw-pixel positions of M̂ at the output size (default: raw size)."""
+    rect = rectify(calib, size)
+    return rect.map_x, rect.map_y

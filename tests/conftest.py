@@ -1,0 +1,46 @@
+"""Shared fixtures: published KITTI calibrations (embedded) and the optional ../shared/data folder."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from appdgen.calibration import Calibration
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# KITTI raw 2011_09_26 calib_cam_to_cam.txt, cameras 00–03 (published values; ../shared/data/kitti/values.csv).
+KITTI_2011_09_26 = {
+    "00": Calibration(1392, 512, 984.2439, 980.8141, 690.0, 233.1966, -0.3728755, 0.2037299, 0.002219027, 0.001383707, -0.07233722),
+    "01": Calibration(1392, 512, 989.5267, 987.8386, 702.0, 245.559, -0.3644661, 0.1790019, 0.001148107, -0.0006298563, -0.05314062),
+    "02": Calibration(1392, 512, 959.791, 956.9251, 696.0217, 224.1806, -0.3691481, 0.1968681, 0.001353473, 0.0005677587, -0.06770705),
+    "03": Calibration(1392, 512, 903.7596, 901.9653, 695.7519, 224.2509, -0.3639558, 0.1788651, 0.0006029694, -0.0003922424, -0.0538246),
+}
+
+#: The paper's perturbation ranges, as fractions of the reference value.
+PAPER_RANGES = {
+    "fx": (-0.05, 0.20), "fy": (-0.05, 0.20), "cx": (-0.05, 0.05), "cy": (-0.05, 0.05),
+    "k1": (-0.15, 0.15), "k2": (-0.15, 0.15), "p1": (-0.15, 0.15), "p2": (-0.15, 0.15), "k3": (-0.15, 0.15),
+}
+
+
+def shared_data() -> Path | None:
+    """The ../shared/data folder (or $APPDGEN_SHARED_DATA) when present."""
+    path = Path(os.environ.get("APPDGEN_SHARED_DATA", ROOT.parent / "shared" / "data"))
+    return path if path.is_dir() else None
+
+
+@pytest.fixture
+def shared() -> Path:
+    """../shared/data, or skip the test cleanly when it is absent."""
+    path = shared_data()
+    if path is None:
+        pytest.skip("../shared/data not present")
+    return path
+
+
+@pytest.fixture
+def kitti02() -> Calibration:
+    """KITTI 2011_09_26 camera 02, the paper's reference camera."""
+    return KITTI_2011_09_26["02"]

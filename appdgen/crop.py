@@ -77,10 +77,15 @@ class _Graph:
 def _solve_x(y: np.ndarray, xd_target: float, calib: Calibration, r_fold: float) -> np.ndarray:
     """Normalized x with distorted xd(x, y) = xd_target for each y, inside the fold radius; NaN elsewhere."""
     # Starting at the distorted value, Newton walks monotonically towards the root on the monotone branch.
-    x = np.full_like(y, xd_target)
+    k1, k2, k3, p1, p2 = calib.k1, calib.k2, calib.k3, calib.p1, calib.p2
+    x, y2, p1y2 = np.full_like(y, xd_target), y * y, 2.0 * p1 * y
     for _ in range(50):
-        xd, _ = distort_normalized(x, y, calib)
-        step = (xd - xd_target) / distortion_jacobian(x, y, calib)[0]
+        # xd(x, y) and ∂xd/∂x of distort_normalized, fused: this loop is the crop's hot path.
+        r2 = x * x + y2
+        poly = k1 + r2 * (k2 + r2 * k3)
+        xd = x * (1.0 + r2 * poly) + p1y2 * x + p2 * (r2 + 2.0 * x * x)
+        slope = 1.0 + r2 * poly + 2.0 * x * x * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)) + p1y2 + 6.0 * p2 * x
+        step = (xd - xd_target) / slope
         x = x - step
         if not np.abs(step).max() > 1e-14:
             break

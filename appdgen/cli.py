@@ -1,0 +1,156 @@
+"""The `appdgen` command line: thin click commands over the library."""
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from pathlib import Path
+from typing import Callable
+
+import click
+
+from appdgen import __version__
+from appdgen.calibration import PARAMS, Calibration
+from appdgen.errors import AppdgenError
+
+
+def fail_cleanly(command: Callable) -> Callable:
+    """Turn AppdgenError into one line on stderr and exit status 2 (no traceback)."""
+
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except AppdgenError as error:
+            click.echo(f"appdgen: error: {error}", err=True)
+            sys.exit(2)
+
+    return wrapper
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """'WxH' → (W, H) in pixels; None passes through."""
+    if text is None:
+        return None
+    try:
+        w, h = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise AppdgenError(f"--size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 348x128") from None
+    if w <= 0 or h <= 0:
+        raise AppdgenError(f"--size {text!r}: width and height must be positive")
+    return w, h
+
+
+def parse_assignments(option: str, items: tuple[str, ...]) -> dict[str, float]:
+    """('fx=0.05', …) → {'fx': 0.05, …}, checking names against the nine parameters."""
+    values: dict[str, float] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or name not in PARAMS:
+            raise AppdgenError(f"{option} {item!r}: expected NAME=VALUE with NAME one of {', '.join(PARAMS)}")
+        try:
+            values[name] = float(text)
+        except ValueError:
+            raise AppdgenError(f"{option} {item!r}: {text!r} is not a number") from None
+    return values
+
+
+def load_calibration(path: str, camera: str | None) -> Calibration:
+    """Read a calibration file of any supported format (errors name the file)."""
+    from appdgen.formats import load
+
+    return load(Path(path), camera=camera)
+
+
+def modified(calib: Calibration, sets: tuple[str, ...], perturbs: tuple[str, ...]) -> Calibration:
+    """Apply --set NAME=VALUE (absolute) then --perturb NAME=FRACTION (× (1 + fraction))."""
+    calib = calib.replace(**parse_assignments("--set", sets))
+    return calib.perturb(**parse_assignments("--perturb", perturbs))
+
+
+calib_option = click.option("--calib", "calib_path", required=True, type=click.Path(dir_okay=False),
+                            help="Calibration file (KITTI, OpenCV YAML/XML, ROS, Kalibr, nuScenes, appdgen JSON).")
+camera_option = click.option("--camera", default=None, help="Camera in the file, e.g. 02 for KITTI image_02.")
+set_option = click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
+                          help="Set a parameter to an absolute value (repeatable).")
+perturb_option = click.option("--perturb", "perturbs", multiple=True, metavar="NAME=FRACTION",
+                              help="Multiply a parameter by (1 + FRACTION), e.g. fx=0.05 (repeatable).")
+size_option = click.option("--size", default=None, metavar="WxH",
+                           help="Output size in pixels (default: the raw size; must keep the raw aspect).")
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="appdgen")
+def main() -> None:
+    """Self-labelled data for learning camera miscalibration detection (APPD labels)."""
+
+
+def _describe(calib: Calibration, new_k) -> dict:
+    """A calibration's parameters, size and output camera matrix K̂, JSON-ready."""
+    return {**calib.params(), "size": list(calib.size), "new_camera_matrix": new_k.tolist()}
+
+
+@main.command()
+@calib_option
+@camera_option
+@set_option
+@perturb_option
+@click.option("--against", "against_path", default=None, type=click.Path(dir_okay=False),
+              help="Compare with this second calibration file instead of a perturbation.")
+@click.option("--against-camera", default=None, help="Camera in the --against file (default: --camera).")
+@size_option
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
+@fail_cleanly
+def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size, as_json):
+    """APPD between a reference calibration and a perturbed (or second) one."""
+    from appdgen.appd import appd_px, px_to_pct
+    from appdgen.maps import rectify
+
+    reference = load_calibration(calib_path, camera)
+    other = load_calibration(against_path, against_camera or camera) if against_path else reference
+    other = modified(other, sets, perturbs)
+    if other.size != reference.size:
+        raise AppdgenError(f"{against_path}: raw size {other.size} differs from {calib_path}'s {reference.size}")
+    out_size = parse_size(size)
+    ref_rect, other_rect = rectify(reference, out_size), rectify(other, out_size)
+    value = appd_px(ref_rect, other_rect)
+    result = {
+        "appd_px": value,
+        "appd_pct": px_to_pct(value, reference),
+        "size": list(ref_rect.size),
+        "reference": _describe(reference, ref_rect.new_camera_matrix),
+        "perturbed": _describe(other, other_rect.new_camera_matrix),
+    }
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+    else:
+        click.echo(f"APPD {value:.4f} px = {result['appd_pct']:.4f} % of the {reference.diagonal:.1f} px diagonal "
+                   f"(output {ref_rect.size[0]}x{ref_rect.size[1]})")
+
+
+@main.command()
+@calib_option
+@camera_option
+@set_option
+@perturb_option
+@size_option
+@click.option("--interp", default="lanczos4", type=click.Choice(["nearest", "linear", "cubic", "lanczos4"]),
+              show_default=True, help="Interpolation of the remap.")
+@click.argument("image", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output image (PNG, JPG…).")
+@fail_cleanly
+def rectify(calib_path, camera, sets, perturbs, size, interp, image, output):
+    """Rectify, crop and rescale one raw image with a (perturbed) calibration."""
+    from appdgen.images import read_image, write_image
+    from appdgen.maps import rectify as rectify_calibration
+    from appdgen.render import remap_image
+
+    calib = modified(load_calibration(calib_path, camera), sets, perturbs)
+    rect = rectify_calibration(calib, parse_size(size))
+    write_image(Path(output), remap_image(read_image(Path(image)), rect, interp))
+    click.echo(f"wrote {output} ({rect.size[0]}x{rect.size[1]})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,44 @@
+"""Reading and writing image files with errors that name the file."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from appdgen.atomic import atomic_write
+from appdgen.errors import AppdgenError
+
+
+def read_image(path: Path) -> np.ndarray:
+    """An 8-bit BGR image (H×W×3) from a file; AppdgenError naming the file when unreadable."""
+    if not path.is_file():
+        raise AppdgenError(f"{path}: no such image file")
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise AppdgenError(f"{path}: not a readable image")
+    return image
+
+
+def encode_image(image: np.ndarray, ext: str) -> bytes:
+    """Encoded bytes for '.png' (compression level 1), '.jpg' (quality 95) or '.npy'."""
+    if ext == ".npy":
+        import io
+
+        buffer = io.BytesIO()
+        np.save(buffer, image, allow_pickle=False)
+        return buffer.getvalue()
+    params = {".png": [cv2.IMWRITE_PNG_COMPRESSION, 1], ".jpg": [cv2.IMWRITE_JPEG_QUALITY, 95]}.get(ext)
+    if params is None:
+        raise AppdgenError(f"unsupported image format {ext!r}; expected .png, .jpg or .npy")
+    ok, data = cv2.imencode(ext, image, params)
+    if not ok:
+        raise AppdgenError(f"could not encode image as {ext}")
+    return data.tobytes()
+
+
+def write_image(path: Path, image: np.ndarray) -> None:
+    """Write an image atomically (temp file, then rename); format from the extension."""
+    ext = path.suffix.lower().replace(".jpeg", ".jpg")
+    data = encode_image(image, ext if ext in (".png", ".jpg", ".npy") else ".png")
+    atomic_write(path, data)

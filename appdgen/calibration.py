@@ -35,14 +35,18 @@ class Calibration:
     def __post_init__(self) -> None:
         for name in ("width", "height"):
             value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value <= 1:
+            try:
+                whole = not isinstance(value, bool) and int(value) == value
+            except (TypeError, ValueError, OverflowError):  # None, NaN, inf, lists…
+                whole = False
+            if not whole or value <= 1:
                 raise AppdgenError(f"calibration: {name} must be an integer > 1, got {value!r}")
             object.__setattr__(self, name, int(value))
         for name in PARAMS:
             value = getattr(self, name)
             try:
                 value = float(value)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):  # OverflowError: ints past 1e308
                 raise AppdgenError(f"calibration: {name} must be a number, got {value!r}") from None
             if not math.isfinite(value):
                 raise AppdgenError(f"calibration: {name} must be finite, got {value!r}")

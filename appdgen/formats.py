@@ -35,10 +35,9 @@ import json
 import os
 import re
 import reprlib
-import secrets
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -48,6 +47,7 @@ import numpy as np
 import yaml
 
 from appdgen.calibration import PARAMS, Calibration
+from appdgen.atomic import atomic_write
 from appdgen.errors import AppdgenError
 
 __all__ = ["APPDGEN_FORMAT", "NUSCENES_SIZE", "list_cameras", "load", "save"]
@@ -455,17 +455,8 @@ def _appdgen_json(calib: Calibration) -> str:
 
 
 def _write_atomic(target: Path, text: str) -> None:
-    """Write text to a temporary file beside `target`, then rename it over `target`."""
-    temporary = target.with_name(f".{target.name}.{secrets.token_hex(4)}.tmp")
+    """Write text atomically, turning OS failures into AppdgenError."""
     try:
-        fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # umask applies, as for open()
-        with os.fdopen(fd, "w", encoding="utf-8") as stream:
-            stream.write(text)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temporary, target)
+        atomic_write(target, text.encode("utf-8"))
     except OSError as exc:
         raise AppdgenError(f"cannot write: {exc.strerror or exc}") from None
-    finally:
-        with suppress(OSError):
-            temporary.unlink(missing_ok=True)

@@ -41,4 +41,8 @@ def write_image(path: Path, image: np.ndarray) -> None:
     """Write an image atomically (temp file, then rename); format from the extension."""
     ext = path.suffix.lower().replace(".jpeg", ".jpg")
     data = encode_image(image, ext if ext in (".png", ".jpg", ".npy") else ".png")
-    atomic_write(path, data)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, data)
+    except OSError as exc:
+        raise AppdgenError(f"{path}: cannot write: {exc.strerror or exc}") from None

@@ -27,9 +27,8 @@ from appdgen.distortion import (
 )
 from appdgen.errors import AppdgenError
 
-_GRID = 2049
+GRID_NODES = 2049
 _TOL = 1e-11  # normalized units: about 1e-8 output pixel
-_BORDER_SAMPLES = 256
 
 
 @dataclass(frozen=True)
@@ -74,38 +73,37 @@ class _Graph:
         return float(-np.inf) if np.isnan(v).any() else float(v.min())
 
 
-def _solve_x(y: np.ndarray, xd_target: float, calib: Calibration, r_fold: float) -> np.ndarray:
-    """Normalized x with distorted xd(x, y) = xd_target for each y, inside the fold radius; NaN elsewhere."""
-    # Starting at the distorted value, Newton walks monotonically towards the root on the monotone branch.
-    k1, k2, k3, p1, p2 = calib.k1, calib.k2, calib.k3, calib.p1, calib.p2
-    x, y2, p1y2 = np.full_like(y, xd_target), y * y, 2.0 * p1 * y
-    for _ in range(50):
-        # xd(x, y) and ∂xd/∂x of distort_normalized, fused: this loop is the crop's hot path.
-        r2 = x * x + y2
+def _solve_axis(fixed: np.ndarray, target: np.ndarray, calib: Calibration, p1: np.ndarray, p2: np.ndarray,
+                r_fold: float) -> np.ndarray:
+    """Free coordinate t with distorted t_d(t, fixed) = target, per element, inside the fold radius.
+
+    Solving for x along rows uses (p1, p2); solving for y along columns is the same equation with p1 and p2
+    swapped, so all four boundary curves go through one vectorized Newton loop.
+    """
+    k1, k2, k3 = calib.k1, calib.k2, calib.k3
+    t, f2, p1f2 = target.copy(), fixed * fixed, 2.0 * p1 * fixed
+    for _ in range(16):
+        # From the distorted value Newton converges in ~6 steps where a root exists; points with no root inside
+        # the fold radius never settle, so the loop is capped and those are caught below.
+        r2 = t * t + f2
         poly = k1 + r2 * (k2 + r2 * k3)
-        xd = x * (1.0 + r2 * poly) + p1y2 * x + p2 * (r2 + 2.0 * x * x)
-        slope = 1.0 + r2 * poly + 2.0 * x * x * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)) + p1y2 + 6.0 * p2 * x
-        step = (xd - xd_target) / slope
-        x = x - step
-        if not np.abs(step).max() > 1e-14:
+        td = t * (1.0 + r2 * poly) + p1f2 * t + p2 * (r2 + 2.0 * t * t)
+        slope = 1.0 + r2 * poly + 2.0 * t * t * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)) + p1f2 + 6.0 * p2 * t
+        step = (td - target) / slope
+        t = t - step
+        if not np.abs(step).max() > 1e-13:  # ~1e-10 px: converged (rounding keeps smaller steps jittering)
             break
-    xd, _ = distort_normalized(x, y, calib)
-    missing = ~((np.abs(xd - xd_target) < 1e-12) & (np.hypot(x, y) < r_fold))
+    r2 = t * t + f2
+    td = t * (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) + p1f2 * t + p2 * (r2 + 2.0 * t * t)
+    missing = ~((np.abs(td - target) < 1e-12) & (r2 < r_fold * r_fold))
     # No root inside the fold radius: the frame edge is never reached there, so the fold circle bounds the set.
-    x[missing] = np.copysign(np.sqrt(r_fold * r_fold - y[missing] ** 2), xd_target)
-    return x
+    t[missing] = np.copysign(np.sqrt(np.maximum(r_fold * r_fold - f2[missing], 0.0)), target[missing])
+    return t
 
 
-def _solve_y(x: np.ndarray, yd_target: float, calib: Calibration, r_fold: float) -> np.ndarray:
-    """Normalized y with distorted yd(x, y) = yd_target for each x, by symmetry with _solve_x."""
-    swapped = Calibration(calib.height, calib.width, calib.fy, calib.fx, calib.cy, calib.cx,
-                          calib.k1, calib.k2, calib.p2, calib.p1, calib.k3)
-    return _solve_x(x, yd_target, swapped, r_fold)
-
-
-def _border_pixels(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel positions along the raw frame's border [0, W−1] × [0, H−1]."""
-    s = np.linspace(0.0, 1.0, _BORDER_SAMPLES)
+def _border_pixels(calib: Calibration, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions along the raw frame's border [0, W−1] × [0, H−1], `samples` per side."""
+    s = np.linspace(0.0, 1.0, samples)
     w, h = calib.width - 1.0, calib.height - 1.0
     u = np.concatenate([s * w, np.full_like(s, w), s * w, np.zeros_like(s)])
     v = np.concatenate([np.zeros_like(s), s * h, np.full_like(s, h), s * h])
@@ -122,23 +120,28 @@ def _fold_error(calib: Calibration, r_fold: float) -> AppdgenError:
 
 
 def _frame_box(calib: Calibration, r_fold: float) -> tuple[float, float, float, float]:
-    """Bounding box (x0, x1, y0, y1), normalized, of the undistorted frame border within the fold radius."""
-    x, y = undistort_pixels(*_border_pixels(calib), calib)
+    """A box (x0, x1, y0, y1), normalized, holding the undistorted frame border within the fold radius."""
+    x, y = undistort_pixels(*_border_pixels(calib, 17), calib)
     ok = np.isfinite(x) & (np.hypot(x, y) < r_fold)
     if not ok.all():
         # Part of the border lies beyond the fold: the fold circle then bounds the valid set there.
         return (-r_fold, r_fold, -r_fold, r_fold)
-    return (max(x.min(), -r_fold), min(x.max(), r_fold), max(y.min(), -r_fold), min(y.max(), r_fold))
+    # A 2 % margin covers the border's bulge between the 17 samples a side.
+    pad_x, pad_y = 0.02 * (x.max() - x.min()), 0.02 * (y.max() - y.min())
+    return (max(x.min() - pad_x, -r_fold), min(x.max() + pad_x, r_fold),
+            max(y.min() - pad_y, -r_fold), min(y.max() + pad_y, r_fold))
 
 
-def _graphs(calib: Calibration, r_fold: float) -> tuple[_Graph, _Graph, _Graph, _Graph]:
-    """The four boundary graphs L(y), R(y), T(x), B(x) over the frame's undistorted bounding box."""
+def _graphs(calib: Calibration, r_fold: float, nodes: int) -> tuple[_Graph, _Graph, _Graph, _Graph]:
+    """The four boundary graphs L(y), R(y), T(x), B(x) on `nodes` nodes over the frame's undistorted box."""
     x0, x1, y0, y1 = _frame_box(calib, r_fold)
-    ys, xs = np.linspace(y0, y1, _GRID), np.linspace(x0, x1, _GRID)
-    left = _solve_x(ys, -calib.cx / calib.fx, calib, r_fold)
-    right = _solve_x(ys, (calib.width - 1 - calib.cx) / calib.fx, calib, r_fold)
-    top = _solve_y(xs, -calib.cy / calib.fy, calib, r_fold)
-    bottom = _solve_y(xs, (calib.height - 1 - calib.cy) / calib.fy, calib, r_fold)
+    ys, xs = np.linspace(y0, y1, nodes), np.linspace(x0, x1, nodes)
+    edges = [-calib.cx / calib.fx, (calib.width - 1 - calib.cx) / calib.fx,
+             -calib.cy / calib.fy, (calib.height - 1 - calib.cy) / calib.fy]
+    p1, p2 = np.full(2 * nodes, calib.p1), np.full(2 * nodes, calib.p2)
+    curves = _solve_axis(np.concatenate([ys, ys, xs, xs]), np.repeat(edges, nodes), calib,
+                         np.concatenate([p1, p2]), np.concatenate([p2, p1]), r_fold)
+    left, right, top, bottom = curves.reshape(4, nodes)
     return _Graph(ys, left), _Graph(ys, right), _Graph(xs, top), _Graph(xs, bottom)
 
 
@@ -162,10 +165,14 @@ def _centre(s: float, aspect: float, g: tuple[_Graph, ...], xc: float, yc: float
     return xc, yc, min((hi_x - lo_x) / aspect, hi_y - lo_y) - s
 
 
-def valid_region(calib: Calibration) -> Crop:
-    """The largest valid rectangle of raw aspect W:H (in pixels), centred where it can slide; normalized units."""
+def valid_region(calib: Calibration, nodes: int = GRID_NODES, check: bool = True) -> Crop:
+    """The largest valid rectangle of raw aspect W:H (in pixels), centred where it can slide; normalized units.
+
+    `nodes` sets the boundary grids' resolution (257 errs by ~1e-4 px); `check=False` skips the final guard
+    (monotone lens over R, R inside the frame), for searches that check their final answer.
+    """
     r_fold = radial_fold_radius(calib)
-    g = _graphs(calib, r_fold)
+    g = _graphs(calib, r_fold, nodes)
     aspect = (calib.width / calib.height) * (calib.fy / calib.fx)
     # Start from a small rectangle around the principal point and grow s to the root of "spare room = 0".
     s = 0.25 * min(g[0].t[-1] - g[0].t[0], (g[2].t[-1] - g[2].t[0]) / aspect)
@@ -190,7 +197,8 @@ def valid_region(calib: Calibration) -> Crop:
         if spare < _TOL or hi - lo < _TOL:
             break
     crop = Crop(xc - 0.5 * aspect * s, yc - 0.5 * s, xc + 0.5 * aspect * s, yc + 0.5 * s)
-    _check_crop(calib, crop, r_fold)
+    if check:
+        _check_crop(calib, crop, r_fold)
     return crop
 
 

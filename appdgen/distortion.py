@@ -32,12 +32,25 @@ def distortion_jacobian(x: np.ndarray, y: np.ndarray, calib: Calibration) -> tup
     return dxx, dxy, dxy, dyy
 
 
-def radial_fold_radius(calib: Calibration) -> float:
-    """Smallest undistorted radius (normalized) where r·radial(r) stops increasing; inf when it never does."""
-    # d/dr [r (1 + k1 r² + k2 r⁴ + k3 r⁶)] = 1 + 3 k1 q + 5 k2 q² + 7 k3 q³ with q = r².
-    roots = np.roots([7.0 * calib.k3, 5.0 * calib.k2, 3.0 * calib.k1, 1.0])
-    q = [r.real for r in roots if abs(r.imag) < 1e-12 * max(1.0, abs(r)) and r.real > 0]
-    return float(np.sqrt(min(q))) if q else float("inf")
+def radial_fold_radius(calib: Calibration, r_max: float = 10.0) -> float:
+    """Smallest undistorted radius (normalized) where r·radial(r) stops growing; inf when not below r_max."""
+    # d/dr [r (1 + k1 r² + k2 r⁴ + k3 r⁶)] = 1 + 3 k1 q + 5 k2 q² + 7 k3 q³ with q = r². Scan, then bisect in
+    # plain floats: LAPACK's root finder (np.roots) differed in the last bit between processes with different
+    # BLAS threading, and that bit reached the crop.
+    def slope(q: float) -> float:
+        return 1.0 + q * (3.0 * calib.k1 + q * (5.0 * calib.k2 + q * 7.0 * calib.k3))
+
+    grid = np.linspace(0.0, r_max * r_max, 4097)
+    negative = np.nonzero(1.0 + grid * (3.0 * calib.k1 + grid * (5.0 * calib.k2 + grid * 7.0 * calib.k3)) <= 0)[0]
+    if negative.size == 0:
+        return float("inf")
+    lo, hi = float(grid[negative[0] - 1]), float(grid[negative[0]])
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if mid in (lo, hi):
+            break
+        lo, hi = (mid, hi) if slope(mid) > 0 else (lo, mid)
+    return float(np.sqrt(lo))
 
 
 def undistort_pixels(u: np.ndarray, v: np.ndarray, calib: Calibration, iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
@@ -52,7 +65,7 @@ def undistort_pixels(u: np.ndarray, v: np.ndarray, calib: Calibration, iteration
         det = a * d - b * c
         dx, dy = (d * ex - b * ey) / det, (a * ey - c * ex) / det
         x, y = x - dx, y - dy
-        if not np.abs(dx).max(initial=0.0) + np.abs(dy).max(initial=0.0) > 1e-15:
+        if not np.abs(dx).max(initial=0.0) + np.abs(dy).max(initial=0.0) > 1e-13:
             break
     ex, ey = distort_normalized(x, y, calib)
     bad = ~(np.hypot(ex - xd, ey - yd) < 1e-11)

@@ -1,7 +1,6 @@
 """APPD: average pixel position difference between two rectifications, in raw pixels or % of the diagonal."""
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from appdgen.calibration import Calibration
@@ -12,10 +11,15 @@ def appd_px(a: Rectification, b: Rectification) -> float:
     """Mean over the output grid of ‖M̂a(p) − M̂b(p)‖₂, in raw pixels."""
     if a.size != b.size:
         raise ValueError(f"rectifications differ in output size: {a.size} vs {b.size}")
-    # cv2's element-wise ops are fast (numpy's hypot is ~3x slower); numpy's float64 pairwise sum is the same
-    # in every process, where cv2.mean's last bits were seen to differ between the main process and workers.
-    distance = cv2.magnitude(cv2.subtract(a.map_x, b.map_x), cv2.subtract(a.map_y, b.map_y))
-    return float(distance.mean(dtype=np.float64))
+    # Plain IEEE float32 ops in place: cv2.magnitude's result was seen to depend on array alignment in its
+    # last bit, which broke byte-identical builds; numpy's sqrt is correctly rounded and its sum pairwise.
+    dx = np.subtract(a.map_x, b.map_x)
+    dy = np.subtract(a.map_y, b.map_y)
+    np.multiply(dx, dx, out=dx)
+    np.multiply(dy, dy, out=dy)
+    np.add(dx, dy, out=dx)
+    np.sqrt(dx, out=dx)
+    return float(dx.mean(dtype=np.float64))
 
 
 def px_to_pct(appd: float, calib: Calibration) -> float:

@@ -56,6 +56,12 @@ class Canvas:
         """World points (…, 3), metres → camera frame."""
         return (np.asarray(points, dtype=np.float64) - self.camera.C) @ self.camera.R.T
 
+    def may_see(self, box: np.ndarray) -> bool:
+        """False when a world box (2, 3) of min and max corners lies wholly outside one frustum half-space."""
+        corners = np.array(np.meshgrid(*box.T, indexing="ij")).reshape(3, -1).T
+        s = self.to_camera(corners) @ self.planes[:, :3].T + self.planes[:, 3]
+        return not np.any(np.all(s < 0, axis=0))
+
     def clip_polygon(self, cam_points: np.ndarray) -> np.ndarray:
         """Sutherland–Hodgman against every frustum half-space; may return fewer than 3 points."""
         poly = cam_points

@@ -32,14 +32,18 @@ DISTRICTS = {
 }
 
 
+#: A drawing operation: a Canvas method's name and its arguments, the first being world points (…, 3).
+Op = tuple[str, tuple]
+
+
 @dataclass
 class Scene:
-    """Camera pose, sky colours and drawing operations (Canvas method, arguments) in painter's order."""
+    """Camera pose, sky colours, and groups of drawing operations with their world bounding boxes, far to near."""
 
     camera: Camera
     zenith: np.ndarray
     horizon: np.ndarray
-    ops: list[tuple[str, tuple]] = field(default_factory=list)
+    groups: list[tuple[np.ndarray, list[Op]]] = field(default_factory=list)
     blur: float = 0.0  # raw pixels: lens softness
     noise: float = 0.0  # grey levels: sensor noise
     noise_seed: int = 0
@@ -47,8 +51,18 @@ class Scene:
     def draw(self, canvas: Canvas) -> None:
         """Paint the scene into a canvas built on self.camera."""
         canvas.sky(self.zenith, self.horizon)
-        for name, args in self.ops:
-            getattr(canvas, name)(*args)
+        for box, ops in self.groups:
+            if canvas.may_see(box):  # one test skips a whole building or pole out of view
+                for name, args in ops:
+                    getattr(canvas, name)(*args)
+
+
+def _bounds(ops: list[Op]) -> np.ndarray:
+    """World bounding box (2, 3) of a group of operations; discs are widened by their largest radius."""
+    points = [np.reshape(args[0], (-1, 3)) for _, args in ops]
+    pad = max((float(np.max(args[1], initial=0.0)) for name, args in ops if name == "discs"), default=0.0)
+    stacked = np.concatenate(points)
+    return np.stack([stacked.min(axis=0) - pad, stacked.max(axis=0) + pad])
 
 
 def hsv(h: float, s: float, v: float) -> np.ndarray:
@@ -98,7 +112,7 @@ class Street:
         self.district = str(rng.choice(["downtown", "residential", "industrial"], p=[0.45, 0.35, 0.2]))
         self.camera = self._camera()
         self.ground: list[tuple[str, tuple]] = []
-        self.back: list[tuple[str, tuple]] = []
+        self.back: list[list] = []  # groups of ops behind the building line: drawn before it
         self.buildings: list[tuple[float, list]] = []
         self.furniture: list[tuple[float, list]] = []
 
@@ -138,17 +152,15 @@ class Street:
         self.overhead()
         if self.end is not None:
             self.end_row()
-        ops = list(self.ground) + list(self.back)
-        for _, group in sorted(self.buildings, key=lambda kv: -kv[0]):
-            ops += group
-        for _, group in sorted(self.furniture, key=lambda kv: -kv[0]):
-            ops += group
+        groups = [self.ground, *self.back]
+        groups += [group for _, group in sorted(self.buildings, key=lambda kv: -kv[0])]
+        groups += [group for _, group in sorted(self.furniture, key=lambda kv: -kv[0])]
         clear = hsv(rng.uniform(0.55, 0.62), rng.uniform(0.35, 0.7), rng.uniform(0.7, 0.95))
         grey = hsv(0.6, rng.uniform(0.0, 0.08), rng.uniform(0.6, 0.85))
         zenith = grey if self.overcast else clear
         horizon = zenith + (255.0 - zenith) * rng.uniform(0.4, 0.8)
         return Scene(
-            self.camera, zenith * self.exposure, horizon * self.exposure, ops,
+            self.camera, zenith * self.exposure, horizon * self.exposure, [(_bounds(g), g) for g in groups if g],
             blur=float(rng.uniform(0.0, 0.6)), noise=float(rng.uniform(0.5, 2.5)),
             noise_seed=int(rng.integers(2**62)),
         )
@@ -256,7 +268,8 @@ class Street:
                 else:
                     back = rng.uniform(10.0, 30.0)
                 if rng.random() < 0.7:
-                    self.building(side, z - 4.0, z + width + 4.0, line + side * back, self.back)
+                    self.back.append([])
+                    self.building(side, z - 4.0, z + width + 4.0, line + side * back, self.back[-1])
                 z += width
                 continue
             width = min(rng.uniform(*p["width"]), stop - z + 1.0)
@@ -297,7 +310,8 @@ class Street:
             style = str(rng.choice(self.district_params()["styles"]))
             origin = np.array([x, 0.0, self.end])
             height = rng.uniform(*self.district_params()["height"]) * 1.2
-            self.back += self.facade(origin, ACROSS, width, height, -ALONG, style, self.facade_colour(style), False)
+            colour = self.facade_colour(style)
+            self.back.append(self.facade(origin, ACROSS, width, height, -ALONG, style, colour, False))
             x += width
 
     def facade_colour(self, style: str) -> np.ndarray:

@@ -26,8 +26,7 @@ class Camera:
 
 @dataclass(frozen=True)
 class Texture:
-    """A tiling gain map (float32 ≈ 1, as mip levels) on a plane: texel (row i, column j) is at
-    origin + (j·e1 + i·e2) / texels_per_m (metres)."""
+    """A tiling gain map (float32 ≈ 1, mip levels) on a plane: texel (i, j) at origin + (j·e1 + i·e2) / texels_per_m."""
 
     levels: tuple[np.ndarray, ...]
     origin: np.ndarray

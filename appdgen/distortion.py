@@ -53,11 +53,9 @@ def radial_fold_radius(calib: Calibration) -> float:
 def undistort_pixels(
     u: np.ndarray, v: np.ndarray, calib: Calibration, iterations: int = 50, on_failure: str = "raise"
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Raw pixel coordinates → undistorted normalized coordinates (unitless), by Newton's method on the 2×2 Jacobian.
-
-    Where a point does not converge to < TOLERANCE, or converges past the fold-over (where the model is not
-    invertible), on_failure="raise" raises AppdgenError and on_failure="nan" returns NaN for that point.
-    """
+    """Raw pixel coordinates → undistorted normalized coordinates (unitless), by Newton on the 2×2 Jacobian."""
+    # A point that does not converge below TOLERANCE, or converges past the fold-over where the model is not
+    # invertible, is an AppdgenError (on_failure="raise") or comes back NaN (on_failure="nan", as crop.py wants).
     if on_failure not in ("raise", "nan"):
         raise AppdgenError(f"undistort_pixels: on_failure must be 'raise' or 'nan', got {on_failure!r}")
     xd = (np.asarray(u, dtype=np.float64) - calib.cx) / calib.fx

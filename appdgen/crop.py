@@ -121,7 +121,7 @@ def _fold_error(calib: Calibration, r_fold: float) -> AppdgenError:
 
 def _frame_box(calib: Calibration, r_fold: float) -> tuple[float, float, float, float]:
     """A box (x0, x1, y0, y1), normalized, holding the undistorted frame border within the fold radius."""
-    x, y = undistort_pixels(*_border_pixels(calib, 17), calib)
+    x, y = undistort_pixels(*_border_pixels(calib, 17), calib, on_failure="nan")
     ok = np.isfinite(x) & (np.hypot(x, y) < r_fold)
     if not ok.all():
         # Part of the border lies beyond the fold: the fold circle then bounds the valid set there.

@@ -1,0 +1,123 @@
+"""Procedural raw frames: random street scenes seen through a camera with calibration Θ (lens distortion included).
+
+Each scene is drawn as an ideal pinhole image on a canvas large enough to hold every raw pixel's
+undistorted position, then resampled: raw pixel (u, v) takes the canvas colour at K·undistort(u, v).
+So straight 3-D edges come out bowed as through the real lens, and rectifying with Θ straightens them.
+"""
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from appdgen._raster import Canvas
+from appdgen._street import Scene, random_street
+from appdgen.calibration import Calibration
+from appdgen.distortion import undistort_pixels
+from appdgen.errors import AppdgenError
+
+MARGIN = 3  # canvas pixels beyond the outermost sample: room for bilinear taps and anti-aliased edges
+MAX_CANVAS_AREA = 16  # × the raw image area; more means the distortion is too extreme to render
+
+
+def scale_calibration(calib: Calibration, scale: float) -> Calibration:
+    """Θ of the same lens on a sensor `scale` times as large: size and K scaled (pixels), distortion unchanged."""
+    if not (math.isfinite(scale) and scale > 0):
+        raise AppdgenError(f"scale must be a positive number, got {scale!r}")
+    if scale == 1.0:
+        return calib
+    return calib.replace(
+        width=round(calib.width * scale), height=round(calib.height * scale),
+        fx=calib.fx * scale, fy=calib.fy * scale, cx=calib.cx * scale, cy=calib.cy * scale,
+    )
+
+
+def frame_rng(seed: int, index: int) -> np.random.Generator:
+    """The generator for frame `index` of a run seeded `seed`: independent of the order frames are made in."""
+    return np.random.default_rng(np.random.SeedSequence([seed, index]))
+
+
+@functools.lru_cache(maxsize=8)
+def _distortion_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
+    """cv2.remap maps raw pixel → canvas pixel (float32), the canvas's camera matrix and size (w, h), pixels."""
+    u, v = np.meshgrid(np.arange(calib.width, dtype=np.float64), np.arange(calib.height, dtype=np.float64))
+    x, y = undistort_pixels(u, v, calib)
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):  # variants of undistort_pixels that mark failures NaN
+        raise AppdgenError("distortion cannot be inverted over the whole image (the lens model folds over)")
+    ideal_u, ideal_v = calib.fx * x + calib.cx, calib.fy * y + calib.cy
+    # Integer offsets keep the canvas pixel grid aligned with the ideal image's, so both draw alike.
+    ox, oy = math.ceil(MARGIN - ideal_u.min()), math.ceil(MARGIN - ideal_v.min())
+    size = (math.ceil(ideal_u.max()) + ox + MARGIN + 1, math.ceil(ideal_v.max()) + oy + MARGIN + 1)
+    if size[0] * size[1] > MAX_CANVAS_AREA * calib.width * calib.height:
+        raise AppdgenError(
+            f"distortion too strong to render: the undistorted view of a {calib.width}x{calib.height} image "
+            f"spans {size[0]}x{size[1]} pixels"
+        )
+    K = calib.K
+    K[0, 2] += ox
+    K[1, 2] += oy
+    return (ideal_u + ox).astype(np.float32), (ideal_v + oy).astype(np.float32), K, size
+
+
+def _ideal(calib: Calibration, scene: Scene) -> np.ndarray:
+    """The scene as a perfect pinhole camera with K of calib would see it (BGR uint8, raw size)."""
+    canvas = Canvas(calib.K, calib.size, scene.camera)
+    scene.draw(canvas)
+    return canvas.image
+
+
+def _distorted(calib: Calibration, scene: Scene) -> np.ndarray:
+    """The scene through calib's lens (BGR uint8, raw size), before sensor effects."""
+    map_x, map_y, K, size = _distortion_maps(calib)
+    canvas = Canvas(K, size, scene.camera)
+    scene.draw(canvas)
+    return cv2.remap(canvas.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def _sensor(image: np.ndarray, scene: Scene) -> np.ndarray:
+    """Lens softness and sensor noise, as the scene chose them."""
+    out = image.astype(np.float32)
+    if scene.blur > 0.05:
+        out = cv2.GaussianBlur(out, (0, 0), scene.blur)
+    out += np.random.default_rng(scene.noise_seed).normal(0.0, scene.noise, out.shape).astype(np.float32)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def render_frame(calib: Calibration, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+    """A random street as a raw frame of the camera Θ (scaled by `scale`): (H, W, 3) uint8, BGR as cv2 uses."""
+    calib = scale_calibration(calib, scale)
+    scene = random_street(rng)
+    return _sensor(_distorted(calib, scene), scene)
+
+
+def render_ideal(calib: Calibration, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+    """The scene render_frame would draw from rng in this state, as an ideal pinhole image (no lens, no noise)."""
+    return _ideal(scale_calibration(calib, scale), random_street(rng))
+
+
+def synthesize(
+    calib: Calibration,
+    frames: int,
+    out_dir: str | Path,
+    seed: int,
+    scale: float = 1.0,
+    progress: Callable[[int], object] | None = None,
+) -> list[Path]:
+    """Write frames frame_000000.png … of random streets seen by Θ (scaled); progress(1) after each one."""
+    if frames < 0:
+        raise AppdgenError(f"frames must be >= 0, got {frames}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for index in range(frames):
+        path = out / f"frame_{index:06d}.png"
+        if not cv2.imwrite(str(path), render_frame(calib, frame_rng(seed, index), scale)):
+            raise AppdgenError(f"{path}: could not write the image")
+        paths.append(path)
+        if progress is not None:
+            progress(1)
+    return paths

@@ -1,0 +1,127 @@
+"""Build throughput against its floor, measured in one run (issue #4 item 8).
+
+floor   = LANCZOS4 remap + PNG encode of the same raw images at the same output size (what any generator pays);
+jobs 1  = `appdgen build --jobs 1` samples/s: target >= 0.85 x floor (sampling, maps, APPD, IO <= 15 %);
+jobs 2  = `--jobs 2`: target >= 1.7 x jobs 1;
+--rss   = peak RSS per worker over a 10,000-sample build at 348x128, and whether it grows.
+Run: make bench   (or: python benchmarks/bench_build.py [--samples 200] [--size 1392x512] [--rss])
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from appdgen.build import BuildConfig, build
+from appdgen.calibration import Calibration
+from appdgen.images import encode_image
+from appdgen.maps import rectify
+from appdgen.sources import list_images
+
+KITTI_02 = Calibration(1392, 512, 959.791, 956.9251, 696.0217, 224.1806,
+                       -0.3691481, 0.1968681, 0.001353473, 0.0005677587, -0.06770705)
+
+
+def make_raw(folder: Path, count: int) -> None:
+    """Textured raw frames (blurred noise compresses like real images do, roughly)."""
+    rng = np.random.default_rng(0)
+    for i in range(count):
+        noise = (rng.random((KITTI_02.height, KITTI_02.width, 3)) * 255).astype(np.uint8)
+        cv2.imwrite(str(folder / f"frame_{i:04d}.png"), cv2.GaussianBlur(noise, (0, 0), 2.0))
+
+
+def floor_rate(raw_dir: Path, samples: int, size: tuple[int, int]) -> float:
+    """Samples/s of remap + encode alone (reference maps, one decode per image as the build does)."""
+    cv2.setNumThreads(1)
+    rect = rectify(KITTI_02, size)
+    images = sorted(raw_dir.glob("*.png"))
+    start = time.perf_counter()
+    for index in range(samples):
+        if index % (samples // len(images)) == 0:
+            raw = cv2.imread(str(images[index * len(images) // samples]))
+        encode_image(cv2.remap(raw, rect.map_x, rect.map_y, cv2.INTER_LANCZOS4,
+                               borderMode=cv2.BORDER_REFLECT_101), ".png")
+    return samples / (time.perf_counter() - start)
+
+
+def build_rate(raw_dir: Path, out: Path, samples: int, size: tuple[int, int], jobs: int) -> float:
+    """Samples/s of a whole build (shards sized so every worker gets work)."""
+    config = BuildConfig(KITTI_02, "02", "kitti", tuple(list_images(str(raw_dir))), samples, size,
+                         shard_size=max(1, samples // (4 * jobs)))
+    start = time.perf_counter()
+    build(config, out, jobs=jobs, overwrite=True, progress=False)
+    return samples / (time.perf_counter() - start)
+
+
+def rss_profile(raw_dir: Path, out: Path, samples: int) -> None:
+    """Peak and progression of worker RSS over a --jobs 2 build at 348x128, polled from /proc."""
+    cmd = [sys.executable, "-m", "appdgen.cli", "build", "--calib", str(raw_dir / "calib.yaml"), "--images",
+           str(raw_dir), "--out", str(out), "--samples", str(samples), "--size", "348x128", "--jobs", "2",
+           "--shard-size", "500", "--overwrite", "--quiet"]
+    from appdgen.formats import save
+
+    save(KITTI_02, raw_dir / "calib.yaml")
+    proc = subprocess.Popen(cmd)
+    peaks: dict[int, list[float]] = {}
+    while proc.poll() is None:
+        for pid in _descendants(proc.pid):
+            rss = _rss_mb(pid)
+            if rss:
+                peaks.setdefault(pid, []).append(rss)
+        time.sleep(0.5)
+    for pid, series in peaks.items():
+        tenth = max(1, len(series) // 10)
+        print(f"  pid {pid}: peak {max(series):6.1f} MB, first 10 % {max(series[:tenth]):6.1f} MB, "
+              f"last 10 % {max(series[-tenth:]):6.1f} MB over {len(series) / 2:.0f} s")
+
+
+def _descendants(pid: int) -> list[int]:
+    """pid and its child processes, from /proc."""
+    children = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout.split()
+    return [pid] + [d for c in children for d in _descendants(int(c))]
+
+
+def _rss_mb(pid: int) -> float | None:
+    """Resident set size of a process in MB, or None when it is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+def main() -> None:
+    """Measure and print rates and ratios."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=160)
+    parser.add_argument("--size", default="1392x512")
+    parser.add_argument("--rss", action="store_true", help="also profile worker RSS over 10,000 samples")
+    args = parser.parse_args()
+    size = tuple(int(v) for v in args.size.split("x"))
+    with tempfile.TemporaryDirectory() as tmp:
+        raw, out = Path(tmp) / "raw", Path(tmp) / "out"
+        raw.mkdir()
+        make_raw(raw, 8)
+        floor = floor_rate(raw, args.samples, size)
+        one = build_rate(raw, out, args.samples, size, 1)
+        two = build_rate(raw, out, args.samples, size, 2)
+        print(f"output {size[0]}x{size[1]}, {args.samples} samples, {os.cpu_count()} cores")
+        print(f"floor (remap + PNG encode) {floor:7.1f} samples/s")
+        print(f"build --jobs 1             {one:7.1f} samples/s  ({one / floor:.2f} x floor; target >= 0.85)")
+        print(f"build --jobs 2             {two:7.1f} samples/s  ({two / one:.2f} x jobs 1; target >= 1.7)")
+        if args.rss:
+            print("worker RSS, 10,000 samples at 348x128, --jobs 2:")
+            rss_profile(raw, out, 10_000)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,10 +1,15 @@
-# Two commands do all set-up on a fresh machine: `make demo` and `make test`.
+# Two commands do all set-up on a fresh machine: `make demo` (the main job on embedded data) and `make test`.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
+APPDGEN := $(VENV)/bin/appdgen
 STAMP := $(VENV)/.installed
+TRAIN_STAMP := $(VENV)/.installed-train
+DEMO := demo
+# The CPU build of torch (an unpinned torch pulls a multi-GB CUDA build).
+TORCH := torch==2.13.0
 
-.PHONY: test bench clean
+.PHONY: demo test test-fast train bench bench-rss clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -12,11 +17,36 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[test]'
 	touch $(STAMP)
 
+$(TRAIN_STAMP): $(STAMP)
+	$(PY) -m pip install -q '$(TORCH)'
+	$(PY) -m pip install -q -e '.[test,train,plot]'
+	touch $(TRAIN_STAMP)
+
+# Synthetic street frames of a quarter-size KITTI camera 02, split by folder, then ~2,000 labelled samples.
+demo: $(STAMP)
+	$(APPDGEN) synth --frames 48 --scale 0.25 --seed 1 --out $(DEMO)/raw/train --quiet
+	$(APPDGEN) synth --frames 16 --scale 0.25 --seed 2 --out $(DEMO)/raw/test --quiet
+	$(APPDGEN) build --calib $(DEMO)/raw/train/calibration.yaml --images $(DEMO)/raw --split-by parent \
+		--samples 2000 --shard-size 250 --out $(DEMO)/shards --overwrite
+	$(APPDGEN) inspect $(DEMO)/shards --sheet $(DEMO)/sheet.png
+
 test: $(STAMP)
 	$(PY) -m pytest -q
 
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not slow"
+
+train: $(TRAIN_STAMP)
+	@test -f $(DEMO)/shards/labels.parquet || $(MAKE) demo
+	$(PY) -m train fit --shards $(DEMO)/shards --split train --run runs/demo
+	$(PY) -m train evaluate --ckpt runs/demo/last.pt --shards $(DEMO)/shards --split test
+
 bench: $(STAMP)
 	$(PY) benchmarks/bench_geometry.py
+	$(PY) benchmarks/bench_build.py
+
+bench-rss: $(STAMP)
+	$(PY) benchmarks/bench_build.py --samples 40 --rss
 
 clean:
-	rm -rf $(VENV) build dist *.egg-info .pytest_cache .hypothesis
+	rm -rf $(VENV) $(DEMO) runs build dist *.egg-info .pytest_cache .hypothesis

@@ -234,5 +234,36 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
                f"{t['mb_written']:.1f} MB written{skipped_note} -> {out_dir}")
 
 
+@main.command()
+@click.option("--calib", "calib_path", default=None, type=click.Path(dir_okay=False),
+              help="Calibration file [default: the bundled KITTI 2011_09_26 file, camera 02].")
+@camera_option
+@click.option("--frames", type=int, required=True, help="Number of frames to render.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--seed", default=0, show_default=True, help="Scene seed: frame i depends on (seed, i) only.")
+@click.option("--scale", default=1.0, show_default=True,
+              help="Render a smaller camera: size and K scaled, distortion unchanged (0.25 → 348x128 for KITTI).")
+@click.option("--quiet", is_flag=True, help="No progress line.")
+@fail_cleanly
+def synth(calib_path, camera, frames, out_dir, seed, scale, quiet):
+    """Render procedural street frames as the (scaled) camera sees them, plus its calibration.yaml."""
+    from appdgen.defaults import DEFAULT_CALIB_PATH
+    from appdgen.formats import save
+    from appdgen.progress import Progress
+    from appdgen.synth import scale_calibration, synthesize
+
+    if frames < 1:
+        raise AppdgenError(f"--frames {frames}: must be at least 1")
+    if not 0 < scale <= 4:
+        raise AppdgenError(f"--scale {scale}: must be in (0, 4]")
+    calib = load_calibration(calib_path or str(DEFAULT_CALIB_PATH), camera or (None if calib_path else "02"))
+    scaled = scale_calibration(calib, scale)
+    out = Path(out_dir)
+    bar = Progress(frames, unit="frames", enabled=not quiet)
+    synthesize(calib, frames, out, seed, scale, progress=bar.advance)
+    save(scaled, out / "calibration.yaml")
+    click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}) and calibration.yaml to {out_dir}")
+
+
 if __name__ == "__main__":
     main()

@@ -19,6 +19,7 @@ from appdgen._street import Scene, random_street
 from appdgen.calibration import Calibration
 from appdgen.distortion import undistort_pixels
 from appdgen.errors import AppdgenError
+from appdgen.images import write_image
 
 MARGIN = 3  # canvas pixels beyond the outermost sample: room for bilinear taps and anti-aliased edges
 MAX_CANVAS_AREA = 16  # × the raw image area; more means the distortion is too extreme to render
@@ -115,8 +116,7 @@ def synthesize(
     paths = []
     for index in range(frames):
         path = out / f"frame_{index:06d}.png"
-        if not cv2.imwrite(str(path), render_frame(calib, frame_rng(seed, index), scale)):
-            raise AppdgenError(f"{path}: could not write the image")
+        write_image(path, render_frame(calib, frame_rng(seed, index), scale))
         paths.append(path)
         if progress is not None:
             progress(1)

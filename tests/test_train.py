@@ -187,6 +187,13 @@ def test_epochs_count_steps_from_the_split(shards, tmp_path, capsys):
     assert summary["step"] == 2  # ceil(0.1 · 72 train samples / 4)
 
 
+def test_max_minutes_stops_early_with_a_checkpoint(shards, tmp_path, capsys):
+    summary = json.loads(run_cli(["fit", "--shards", shards, "--run", tmp_path / "r", "--steps", 1000, "--batch", 4,
+                                  "--max-minutes", "1e-6", "--log-every", 2, "--workers", 0, "--quiet"], capsys))
+    assert summary["step"] == 2
+    assert torch.load(tmp_path / "r" / "last.pt", weights_only=True)["step"] == 2
+
+
 # --- evaluate, predict, export ----------------------------------------------------------------------
 
 

@@ -36,6 +36,10 @@ def cli() -> None:
 @click.option("--val-every", type=click.IntRange(1), help="Steps between validations [default: --ckpt-every].")
 @click.option("--val-max", default=1000, show_default=True, type=click.IntRange(1), help="Most validation images used.")
 @click.option("--log-every", default=10, show_default=True, type=click.IntRange(1), help="Steps between log.csv rows.")
+@click.option("--max-minutes", type=click.FloatRange(0, min_open=True),
+              help="Stop early, validated and checkpointed, after this wall time (checked every --log-every steps).")
+@click.option("--shuffle-buffer", default=1000, show_default=True, type=click.IntRange(1),
+              help="Samples (encoded) mixed by the shuffle buffer of each loader worker.")
 @click.option("--resume", is_flag=True, help="Continue from RUN/last.pt (starts fresh if there is none).")
 @click.option("--seed", default=0, show_default=True, help="Seed for weights and data order.")
 @DEVICE

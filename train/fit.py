@@ -43,6 +43,8 @@ class FitOptions:
     val_every: int | None = None  # default: every checkpoint
     val_max: int = 1000
     log_every: int = 10
+    max_minutes: float | None = None  # stop early (checkpointed, validated) after this wall time
+    shuffle_buffer: int = 1000
     resume: bool = False
     seed: int = 0
     device: str = "auto"
@@ -265,7 +267,8 @@ class Trainer:
     def loader(self, step: int):
         """Infinite shuffled training batches for this rank; epoch seeds move with the resume step."""
         spec = StreamSpec(self.ss.for_split(self.plan.train.split), self.plan.train, self.size, loop=True,
-                          shuffle=True, seed=self.opts.seed, epoch0=step, rank=self.rank, world=self.world)
+                          shuffle=True, seed=self.opts.seed, epoch0=step, buffer=self.opts.shuffle_buffer,
+                          rank=self.rank, world=self.world)
         return iter(make_loader(spec, self.opts.batch, self.opts.workers))
 
     def val_loader(self):
@@ -283,13 +286,18 @@ class Trainer:
         self.announce(step, steps)
         progress = runtime.Progress(steps, "fit", enabled=self.rank == 0 and not self.opts.quiet)
         batches, window = self.loader(step), Window(self.device)
-        last = {"train_loss": None}
+        last, deadline = {"train_loss": None}, Deadline(self.opts.max_minutes)
         while step < steps:
             batch = next(batches, None)
             if batch is None:
                 raise TrainError(f"no training samples for {self.plan.train.describe()} on rank {self.rank}")
             window.add(train_step(self.net, self.opt, batch, self.device, self.dtype), len(batch["label"]) * self.world)
             step += 1
+            if step % self.opts.log_every == 0 and deadline.passed():
+                steps = step  # out of time: make this the final step
+                if self.rank == 0:
+                    print(f"\nfit: --max-minutes {self.opts.max_minutes:g} reached; stopping at step {step}",
+                          file=sys.stderr)
             last = self.bookkeeping(step, steps, window, progress) or last
         progress.close()
         return self.summary(step, last["train_loss"], {k: v for k, v in last.items() if k.startswith("val")})
@@ -303,7 +311,7 @@ class Trainer:
             row = {"train_loss": window.mean_loss(), "images_per_s": window.rate(),
                    **(self.validate(step) if val_due else {})}
             self.log.row(step=step, lr=self.opt.param_groups[0]["lr"], **row)
-            progress.update(step, f"loss {row['train_loss']:.4f} {row['images_per_s']:.1f} img/s")
+            progress.update(step, f"loss {row['train_loss']:.4f} {row['images_per_s']:.1f} img/s", force=final)
             window.reset()
         if final or step % o.ckpt_every == 0:
             with window.paused():  # keep checkpoint time out of images_per_s
@@ -384,3 +392,16 @@ class Window:
         start = time.perf_counter()
         yield
         self.t0 += time.perf_counter() - start
+
+
+class Deadline:
+    """A wall-clock budget that all ranks agree has passed (checked only at log steps: one collective)."""
+
+    def __init__(self, minutes: float | None) -> None:
+        self.end = None if minutes is None else time.perf_counter() + 60.0 * minutes
+
+    def passed(self) -> bool:
+        """True once any rank is past the budget."""
+        if self.end is None:
+            return False
+        return runtime.max_over_ranks(float(time.perf_counter() > self.end)) > 0

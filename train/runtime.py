@@ -97,6 +97,17 @@ def mean_over_ranks(value: torch.Tensor) -> float:
     return float(value)
 
 
+def max_over_ranks(value: float) -> float:
+    """The largest of a scalar over all ranks (the value itself outside torchrun)."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        t = torch.tensor(value, dtype=torch.float64)
+        dist.all_reduce(t, op=dist.ReduceOp.MAX)
+        return float(t)
+    return value
+
+
 def finish_distributed() -> None:
     """Leave the process group cleanly (no-op outside torchrun)."""
     import torch.distributed as dist
@@ -123,12 +134,12 @@ class Progress:
         self.start = self.last = time.perf_counter()
         self.first_step: int | None = None
 
-    def update(self, done: int, text: str = "") -> None:
-        """Show `done` of total, rate-limited; the ETA uses the rate since the first update."""
+    def update(self, done: int, text: str = "", force: bool = False) -> None:
+        """Show `done` of total, rate-limited unless forced; the ETA uses the rate since the first update."""
         now = time.perf_counter()
         if self.first_step is None:
             self.first_step, self.start = done, now
-        if not self.enabled or (now - self.last < self.every and done < self.total):
+        if not self.enabled or (now - self.last < self.every and done < self.total and not force):
             return
         self.last = now
         rate = (done - self.first_step) / max(now - self.start, 1e-9)

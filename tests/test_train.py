@@ -98,6 +98,21 @@ def test_all_image_formats_decode(tmp_path, fmt):
     assert all(s["image"].shape == (3, 128, 128) and s["image"].dtype == torch.uint8 for s in samples)
 
 
+def test_shards_without_build_json_are_found_by_name(shards, tmp_path):
+    copy = shutil.copytree(shards, tmp_path / "copy")
+    (copy / "build.json").unlink()
+    ss = open_shards(copy)
+    assert len(ss.shards) == 8 and ss.size is None
+    assert len(list(ShardStream(StreamSpec(ss.shards, Selection("test"))))) == 24
+
+
+def test_a_missing_shard_is_reported(shards, tmp_path):
+    copy = shutil.copytree(shards, tmp_path / "copy")
+    (copy / "shard-000003.tar").unlink()
+    with pytest.raises(TrainError, match="shard-000003.tar"):
+        open_shards(copy)
+
+
 def test_shard_mode_needs_balanced_slots():
     assert shard_mode_ok([8, 8, 8, 8], 2) and shard_mode_ok([8, 8, 8, 8], 4)
     assert not shard_mode_ok([8, 4, 8, 4], 2)  # whole shards would skew sampling frequency

@@ -63,11 +63,14 @@ def open_shards(root: str | Path) -> ShardSet:
     except (OSError, ValueError) as exc:
         raise TrainError(f"{build_path}: unreadable build.json ({exc})") from None
     shards = tuple(
-        Shard(str(root / s["file"]), int(s.get("samples", 0)), dict(s.get("splits", {})))
+        Shard(str(root / s["file"]), int(s.get("samples", 0)), dict(s["splits"]) if "splits" in s else _AllSplits())
         for s in build.get("shards", [])
     )
     if not shards:
         raise TrainError(f"{build_path}: lists no shards")
+    missing = [s.path for s in shards if not Path(s.path).is_file()]
+    if missing:
+        raise TrainError(f"{build_path}: {len(missing)} listed shard(s) missing, e.g. {missing[0]}")
     size = tuple(build["size"]) if build.get("size") else None
     appd_max = float(build["appd_max"]) if build.get("appd_max") is not None else None
     return ShardSet(root, shards, size, appd_max, build)
@@ -97,7 +100,9 @@ def read_labels(root: Path) -> dict[str, list] | None:
         return None
     import pyarrow.parquet as pq
 
-    return pq.read_table(path, columns=["key", "split", "raw_path", "appd_pct"]).to_pydict()
+    cols = pq.read_table(path, columns=["key", "split", "raw_path", "appd_pct"]).to_pydict()
+    cols["key"] = [str(k) for k in cols["key"]]  # json keys are strings; match them whatever parquet typed
+    return cols
 
 
 def in_holdout(ident: str, fraction: float) -> bool:

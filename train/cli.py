@@ -141,7 +141,9 @@ def main(argv: list[str] | None = None) -> None:
     try:
         import torch  # noqa: F401 - only to give a clear message
     except ImportError:
-        sys.exit("error: the trainer needs PyTorch: pip install torch==2.13.0 (CPU) && pip install -e '.[train]'")
+        click.echo("error: the trainer needs PyTorch: pip install torch==2.13.0 (CPU) && pip install -e '.[train]'",
+                   err=True)
+        sys.exit(2)
     try:
         cli.main(args=argv, prog_name="python -m train", standalone_mode=False)
     except click.exceptions.Abort:

@@ -1,0 +1,78 @@
+"""Images/s the shard loader delivers vs images/s a training step consumes, measured in one run.
+
+    python benchmarks/bench_train.py                      # synthetic 348x128 PNG shards in a temp folder
+    python benchmarks/bench_train.py --shards demo/shards # real shards
+
+If the loader's rate is well above the step's, training is compute-bound and more --workers won't help.
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+from train import runtime
+from train.data import Selection, StreamSpec, make_loader, open_shards
+from train.fit import train_step
+from train.model import AppdNet, ModelConfig
+from train.synthetic import write_shards
+
+
+def parse() -> argparse.Namespace:
+    """Command-line options."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--shards", help="shard folder (default: synthetic 348x128 PNG shards)")
+    p.add_argument("--split", default="train")
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--steps", type=int, default=10, help="timed steps (after 5 warm-up steps)")
+    p.add_argument("--loader-batches", type=int, default=30, help="timed loader batches")
+    p.add_argument("--precision", default="auto", choices=runtime.PRECISIONS)
+    p.add_argument("--device", default="auto")
+    return p.parse_args()
+
+
+def rate(fn, n: int, images: int) -> float:
+    """Images per second over n calls of fn, each handling `images` images."""
+    t = time.perf_counter()
+    for _ in range(n):
+        fn()
+    return n * images / (time.perf_counter() - t)
+
+
+def main() -> None:
+    """Measure loader, step and loader+step rates and print them."""
+    args = parse()
+    device = runtime.pick_device(args.device)
+    runtime.setup_threads(device)
+    dtype = runtime.autocast_dtype(device, args.precision)
+    with tempfile.TemporaryDirectory() as tmp:
+        root = args.shards or write_shards(Path(tmp) / "shards", n=256, size=(348, 128), per_shard=64,
+                                           splits=(("train", 1),))
+        ss = open_shards(root)
+        w, h = ss.size
+        spec = StreamSpec(ss.for_split(args.split), Selection(args.split), (w, h), loop=True, shuffle=True)
+        batches = iter(make_loader(spec, args.batch, args.workers))
+        next(batches)  # start-up (worker fork, first shard open) is not throughput
+        load_rate = rate(lambda: next(batches), args.loader_batches, args.batch)
+        model = AppdNet(ModelConfig(w, h)).to(device).to(memory_format=torch.channels_last).train()
+        opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+        fixed = next(batches)
+        for _ in range(5):  # oneDNN picks and caches kernels on the first few steps
+            train_step(model, opt, fixed, device, dtype)
+        step_rate = rate(lambda: float(train_step(model, opt, fixed, device, dtype)), args.steps, args.batch)
+        both_rate = rate(lambda: float(train_step(model, opt, next(batches), device, dtype)), args.steps, args.batch)
+    print(f"device {device}, {torch.get_num_threads()} threads, autocast {dtype or 'off'}, {w}x{h} px, "
+          f"batch {args.batch}, workers {args.workers}")
+    print(f"loader delivers   {load_rate:8.1f} images/s")
+    print(f"train step takes  {step_rate:8.1f} images/s (fixed batch, compute only)")
+    print(f"loader + step     {both_rate:8.1f} images/s (as fit runs)")
+    bound = "loader" if load_rate < 1.2 * step_rate else "compute"
+    print(f"bound by: {bound}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,323 @@
+"""The torch trainer (train/): data splitting, model, fit/resume, evaluate, predict, export."""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import sys
+import types
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+import cv2  # noqa: E402
+
+from train.checkpoint import check_plain  # noqa: E402
+from train.cli import main  # noqa: E402
+from train.data import (  # noqa: E402
+    Selection, ShardStream, StreamSpec, count_selected, make_loader, open_shards, read_labels, shard_mode_ok,
+)
+from train.errors import TrainError  # noqa: E402
+from train.model import AppdNet, ModelConfig, check_size  # noqa: E402
+from train.predict import running_verdicts  # noqa: E402
+from train.synthetic import write_shards  # noqa: E402
+
+STEPS = 30
+
+
+def run_cli(args: list[str], capsys) -> str:
+    """Run `python -m train ARGS` in-process; returns stdout (raises SystemExit on errors)."""
+    main([str(a) for a in args])
+    return capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def shards(tmp_path_factory) -> Path:
+    """96 samples, 128x128 PNG, 12 per shard, train:test 3:1 by raw image; label from brightness."""
+    return write_shards(tmp_path_factory.mktemp("shards"), n=96, per_shard=12)
+
+
+@pytest.fixture(scope="module")
+def trained(shards, tmp_path_factory) -> Path:
+    """A run folder after a short fit (with a raw-image holdout for validation)."""
+    run = tmp_path_factory.mktemp("runs") / "tiny"
+    main(["fit", "--shards", str(shards), "--run", str(run), "--steps", str(STEPS), "--batch", "8", "--lr", "1e-3",
+          "--ckpt-every", "15", "--log-every", "5", "--workers", "0", "--val-fraction", "0.2", "--quiet"])
+    return run
+
+
+def keys_of(spec: StreamSpec, workers: int) -> list[str]:
+    """Every key one rank's DataLoader yields."""
+    return [k for batch in make_loader(spec, 5, workers) for k in batch["key"]]
+
+
+# --- model ------------------------------------------------------------------------------------------
+
+
+def test_model_is_the_papers_cnn():
+    model = AppdNet(ModelConfig(348, 128))
+    convs = [m for m in model.features.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert [c.out_channels for c in convs[1::2]] == [32, 32, 32, 64, 128, 128, 128]
+    assert all(c.kernel_size == (3, 3) for c in convs) and len(convs) == 14
+    pools = [m for m in model.features.modules() if isinstance(m, torch.nn.MaxPool2d)]
+    assert len(pools) == 7
+    dense = [m for m in model.head if isinstance(m, torch.nn.Linear)]
+    # 348x128 → 2x1 after 7 halvings: flatten gives 128·2·1 inputs to dense 512, 128, 1.
+    assert [(d.in_features, d.out_features) for d in dense] == [(256, 512), (512, 128), (128, 1)]
+    assert any(isinstance(m, torch.nn.Dropout) and m.p == 0.5 for m in model.head)
+    assert all(float(c.bias.detach().abs().max()) == 0 for c in convs)
+    assert model(torch.rand(2, 3, 128, 348)).shape == (2,)
+
+
+@pytest.mark.parametrize("size", [(128, 64), (100, 200), (127, 128)])
+def test_too_small_images_are_refused_clearly(size):
+    with pytest.raises(TrainError, match=r"at least 128x128"):
+        check_size(*size)
+
+
+def test_fit_refuses_shards_too_small_for_the_network(tmp_path, capsys):
+    small = write_shards(tmp_path / "small", n=8, size=(128, 64), per_shard=8)
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", "--shards", str(small), "--run", str(tmp_path / "r"), "--steps", "1"])
+    assert exc.value.code == 2
+    assert "128x64" in capsys.readouterr().err
+
+
+# --- data -------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fmt", ["png", "jpg", "npy"])
+def test_all_image_formats_decode(tmp_path, fmt):
+    root = write_shards(tmp_path, n=4, per_shard=4, fmt=fmt, splits=(("train", 1),))
+    samples = list(ShardStream(StreamSpec(open_shards(root).shards, Selection("train"), (128, 128))))
+    assert len(samples) == 4
+    assert all(s["image"].shape == (3, 128, 128) and s["image"].dtype == torch.uint8 for s in samples)
+
+
+def test_shards_without_build_json_are_found_by_name(shards, tmp_path):
+    copy = shutil.copytree(shards, tmp_path / "copy")
+    (copy / "build.json").unlink()
+    ss = open_shards(copy)
+    assert len(ss.shards) == 8 and ss.size is None
+    assert len(list(ShardStream(StreamSpec(ss.shards, Selection("test"))))) == 24
+
+
+def test_a_missing_shard_is_reported(shards, tmp_path):
+    copy = shutil.copytree(shards, tmp_path / "copy")
+    (copy / "shard-000003.tar").unlink()
+    with pytest.raises(TrainError, match="shard-000003.tar"):
+        open_shards(copy)
+
+
+def test_shard_mode_needs_balanced_slots():
+    assert shard_mode_ok([8, 8, 8, 8], 2) and shard_mode_ok([8, 8, 8, 8], 4)
+    assert not shard_mode_ok([8, 4, 8, 4], 2)  # whole shards would skew sampling frequency
+    assert not shard_mode_ok([8, 8], 4)  # fewer shards than slots
+    assert shard_mode_ok([3], 1)
+
+
+@pytest.mark.parametrize("uniform", [True, False], ids=["shard-mode", "sample-mode"])
+@pytest.mark.parametrize("world,workers", [(1, 0), (1, 2), (2, 0), (3, 2)])
+def test_ranks_and_workers_partition_the_split(tmp_path, uniform, world, workers):
+    splits = (("train", 1),) if uniform else (("train", 3), ("test", 1))
+    ss = open_shards(write_shards(tmp_path, n=48, per_shard=6, splits=splits))
+    sel = Selection("train")
+    keys = Counter(k for rank in range(world)
+                   for k in keys_of(StreamSpec(ss.for_split("train"), sel, ss.size, rank=rank, world=world), workers))
+    assert set(keys.values()) == {1}, "a sample was yielded twice"
+    assert sum(keys.values()) == ss.split_count("train"), "a sample was lost"
+
+
+def test_looping_stream_yields_each_sample_once_per_pass(shards):
+    ss = open_shards(shards)
+    n = ss.split_count("train")
+    stream = iter(ShardStream(StreamSpec(ss.for_split("train"), Selection("train"), ss.size, loop=True,
+                                         shuffle=True, buffer=7)))
+    first, second = ([next(stream)["key"] for _ in range(n)] for _ in range(2))
+    assert len(set(first)) == n and set(first) == set(second) and first != second
+
+
+def test_holdout_splits_by_raw_image(shards):
+    labels = read_labels(shards)
+    raw = dict(zip(labels["key"], labels["raw_path"]))
+    tr, va = (Selection("train", 0.3, side, raw) for side in ("train", "val"))
+    side = {k: (tr.accepts({"key": k, "split": s}), va.accepts({"key": k, "split": s}))
+            for k, s in zip(labels["key"], labels["split"]) if s == "train"}
+    assert all(a != b for a, b in side.values()), "every training sample is on exactly one side"
+    by_raw: dict[str, set] = {}
+    for k, sides in side.items():
+        by_raw.setdefault(raw[k], set()).add(sides)
+    assert all(len(s) == 1 for s in by_raw.values()), "a raw image straddles train and val"
+    assert count_selected(labels, tr) + count_selected(labels, va) == len(side)
+    assert count_selected(labels, va) > 0
+
+
+# --- fit, checkpoints, resume -----------------------------------------------------------------------
+
+
+def read_log(run: Path) -> list[dict]:
+    with open(run / "log.csv") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_fit_lowers_the_loss_and_beats_the_mean(trained, shards, capsys):
+    rows = read_log(trained)
+    assert list(rows[0]) == ["step", "train_loss", "val_loss", "val_mae", "lr", "images_per_s"]
+    assert float(rows[-1]["train_loss"]) < 0.5 * float(rows[0]["train_loss"])
+    assert any(r["val_mae"] for r in rows) and (trained / "best.pt").exists()
+    args = ["evaluate", "--ckpt", trained / "last.pt", "--shards", shards, "--workers", 0]
+    result = json.loads(run_cli(args, capsys))
+    assert result["mae"] < result["mean_predictor_mae"]
+
+
+def test_checkpoints_load_weights_only(trained):
+    for name in ("last.pt", "best.pt"):
+        ckpt = torch.load(trained / name, map_location="cpu", weights_only=True)
+        assert ckpt["step"] <= STEPS and ckpt["config"]["model"]["width"] == 128
+        assert len(ckpt["config"]["model"]["mean"]) == 3 and isinstance(ckpt["config"]["label_mean"], float)
+    with pytest.raises(TypeError, match="weights_only"):
+        check_plain({"v": torch.__version__})  # a str subclass torch.load would refuse
+
+
+def test_resume_continues_and_refuses_to_overwrite(trained, shards, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    args = ["fit", "--shards", shards, "--run", run, "--steps", STEPS + 5, "--batch", 8, "--workers", 0, "--quiet"]
+    with pytest.raises(SystemExit):
+        run_cli(args, capsys)
+    assert "--resume" in capsys.readouterr().err
+    summary = json.loads(run_cli([*args, "--resume"], capsys))
+    assert summary["step"] == STEPS + 5
+    assert torch.load(run / "last.pt", weights_only=True)["step"] == STEPS + 5
+    assert read_log(run)[-1]["step"] == str(STEPS + 5)
+
+
+def test_epochs_count_steps_from_the_split(shards, tmp_path, capsys):
+    summary = json.loads(run_cli(["fit", "--shards", shards, "--run", tmp_path / "r", "--epochs", "0.1",
+                                  "--batch", 4, "--workers", 0, "--val-split", "none", "--quiet"], capsys))
+    assert summary["step"] == 2  # ceil(0.1 · 72 train samples / 4)
+
+
+def test_max_minutes_stops_early_with_a_checkpoint(shards, tmp_path, capsys):
+    summary = json.loads(run_cli(["fit", "--shards", shards, "--run", tmp_path / "r", "--steps", 1000, "--batch", 4,
+                                  "--max-minutes", "1e-6", "--log-every", 2, "--workers", 0, "--quiet"], capsys))
+    assert summary["step"] == 2
+    assert torch.load(tmp_path / "r" / "last.pt", weights_only=True)["step"] == 2
+
+
+# --- evaluate, predict, export ----------------------------------------------------------------------
+
+
+def test_evaluate_reports_bins_and_classification(trained, shards, tmp_path, capsys):
+    out = tmp_path / "eval.json"
+    plot = tmp_path / "eval.png"
+    result = json.loads(run_cli(["evaluate", "--ckpt", trained / "last.pt", "--shards", shards, "--split", "test",
+                                 "--json", out, "--plot", plot, "--threshold", "1.5", "--workers", 0], capsys))
+    assert json.loads(out.read_text()) == {k: v for k, v in result.items() if k != "plot"}
+    assert result["n"] == 24 and len(result["bins"]) == 10 and result["bins"][-1]["hi"] == 3.0
+    assert sum(b["n"] for b in result["bins"]) == 24
+    assert {"mae", "rmse", "mean_predictor_mae"} <= set(result)
+    cls = result["classification"]
+    assert cls["threshold"] == 1.5 and cls["tp"] + cls["fp"] + cls["fn"] + cls["tn"] == 24
+    pytest.importorskip("matplotlib")
+    assert plot.stat().st_size > 1000
+
+
+def extract_pngs(shards: Path, dest: Path, n: int = 10) -> list[Path]:
+    """The first n test images of the shards as plain PNG files (a 'sequence')."""
+    ss = open_shards(shards)
+    dest.mkdir()
+    paths = []
+    for s in ShardStream(StreamSpec(ss.for_split("test"), Selection("test"), ss.size, limit=n)):
+        paths.append(dest / f"{s['key']}.png")
+        cv2.imwrite(str(paths[-1]), s["image"].numpy().transpose(1, 2, 0))
+    return paths
+
+
+def test_predict_a_folder_as_csv_and_json(trained, shards, tmp_path, capsys):
+    extract_pngs(shards, tmp_path / "seq")
+    rows = list(csv.DictReader(run_cli(["predict", "--ckpt", trained / "last.pt", tmp_path / "seq", "--csv"],
+                                       capsys).splitlines()))
+    assert len(rows) == 10 and list(rows[0]) == ["path", "appd_pct", "running_median", "recalibrate"]
+    out = json.loads(run_cli(["predict", "--ckpt", trained / "last.pt", tmp_path / "seq", "--json", "--window", 3,
+                              "--threshold", "-1"], capsys))
+    assert out["summary"]["verdict"] == "recalibrate" and out["summary"]["images"] == 10
+
+
+def test_predict_refuses_wrong_size_without_calib(trained, tmp_path, capsys):
+    cv2.imwrite(str(tmp_path / "big.png"), np.zeros((150, 200, 3), np.uint8))
+    with pytest.raises(SystemExit):
+        run_cli(["predict", "--ckpt", trained / "last.pt", tmp_path / "big.png"], capsys)
+    assert "--calib" in capsys.readouterr().err
+    assert "big.png" in run_cli(["predict", "--ckpt", trained / "last.pt", tmp_path / "big.png", "--resize"], capsys)
+
+
+def test_running_median_verdict():
+    preds = running_verdicts([Path(f"{i}") for i in range(5)], [0.1, 3.0, 0.2, 3.0, 3.0], 3, 1.0)
+    assert [p.running_median for p in preds] == [0.1, 1.55, 0.2, 3.0, 3.0]
+    assert [p.recalibrate for p in preds] == [False, True, False, True, True]
+
+
+def fake_appdgen(monkeypatch, seen: dict) -> None:
+    """Stand-ins for appdgen.formats/maps/render: 'rectify' by resizing, recording the calls."""
+    from appdgen import Calibration
+
+    def rectification_maps(calib, size):
+        seen["size"] = tuple(size)
+        return ("map_x", "map_y")
+
+    def remap_image(raw, maps, interp="linear"):
+        seen["interp"] = interp
+        return cv2.resize(raw, seen["size"])
+
+    def load(path, camera):
+        seen["camera"] = camera
+        return Calibration(200, 150, 100, 100, 100, 75)
+
+    mods = {"appdgen.formats": {"load": load},
+            "appdgen.maps": {"rectification_maps": rectification_maps},
+            "appdgen.render": {"remap_image": remap_image}}
+    for name, attrs in mods.items():
+        monkeypatch.setitem(sys.modules, name, types.SimpleNamespace(**attrs))
+
+
+def test_predict_with_calib_rectifies_raw_images(trained, tmp_path, monkeypatch, capsys):
+    seen: dict = {}
+    fake_appdgen(monkeypatch, seen)
+    raw = tmp_path / "raw.png"
+    cv2.imwrite(str(raw), np.full((150, 200, 3), 90, np.uint8))
+    out = run_cli(["predict", "--ckpt", trained / "last.pt", "--calib", tmp_path / "calib.yaml", "--camera", "02",
+                   raw, "--json"], capsys)
+    assert seen["size"] == (128, 128) and seen["interp"] == "lanczos4" and seen["camera"] == "02"
+    assert len(json.loads(out)["predictions"]) == 1
+
+
+def test_predict_calib_without_appdgen_support_is_a_clear_error(trained, tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "appdgen.formats", None)
+    with pytest.raises(SystemExit) as exc:
+        run_cli(["predict", "--ckpt", trained / "last.pt", "--calib", "x.yaml", tmp_path], capsys)
+    assert exc.value.code == 2 and "appdgen" in capsys.readouterr().err
+
+
+@pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
+def test_export_torchscript_and_onnx_match_eager(trained, tmp_path, capsys):
+    ts = tmp_path / "m.pt"
+    out = run_cli(["export", "--ckpt", trained / "last.pt", "--torchscript", ts], capsys)
+    assert "ok" in out and ts.exists()
+    extra = {"config.json": ""}
+    torch.jit.load(str(ts), _extra_files=extra)
+    assert json.loads(extra["config.json"])["width"] == 128
+    pytest.importorskip("onnxscript")
+    out = run_cli(["export", "--ckpt", trained / "last.pt", "--onnx", tmp_path / "m.onnx"], capsys)
+    assert "tolerance" in out and (tmp_path / "m.onnx").exists()
+
+
+def test_cli_errors_are_one_line_exit_2(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", "--shards", str(tmp_path / "nope"), "--run", str(tmp_path / "r"), "--steps", "1"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.strip().count("\n") == 0

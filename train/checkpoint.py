@@ -1,0 +1,71 @@
+"""Checkpoints: plain tensors, dicts, lists, str and numbers only, so weights_only=True loads them."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+
+from train.errors import TrainError
+from train.model import AppdNet, ModelConfig
+
+FORMAT = "appdgen-train/1"
+
+
+PLAIN = (str, int, float, bool, type(None), torch.Tensor)
+
+
+def check_plain(obj: object, where: str = "checkpoint") -> None:
+    """Raise if obj holds anything torch.load(weights_only=True) would refuse (caught at save, not load)."""
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            check_plain(k, f"{where} key")
+            check_plain(v, f"{where}[{k!r}]")
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            check_plain(v, f"{where}[{i}]")
+    elif type(obj) not in PLAIN and not isinstance(obj, torch.Tensor):
+        raise TypeError(f"{where}: {type(obj).__qualname__} is not weights_only-safe")
+
+
+def save(path: Path, payload: dict) -> None:
+    """Write atomically: a crash mid-save leaves the previous checkpoint intact."""
+    check_plain(payload)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as fh:
+        torch.save({"format": FORMAT, **payload}, fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def load(path: str | Path) -> dict:
+    """Load a checkpoint onto the CPU with weights_only=True (no pickled code runs)."""
+    path = Path(path)
+    if not path.is_file():
+        raise TrainError(f"{path}: no such checkpoint")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for corrupt or foreign files
+        raise TrainError(f"{path}: not a loadable checkpoint ({type(exc).__name__}: {exc})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise TrainError(f"{path}: not an appdgen-train checkpoint (format {ckpt.get('format')!r})")
+    return ckpt
+
+
+def model_config(ckpt: dict) -> ModelConfig:
+    """The network configuration stored in a checkpoint."""
+    return ModelConfig.from_dict(ckpt["config"]["model"])
+
+
+def build_model(ckpt: dict) -> AppdNet:
+    """The checkpoint's network with its weights, in eval mode on the CPU."""
+    model = AppdNet(model_config(ckpt))
+    model.load_state_dict(ckpt["model"])
+    return model.eval()
+
+
+def label_mean(ckpt: dict) -> float:
+    """Mean training label (APPD %): what the trivial mean predictor outputs."""
+    return float(ckpt["config"]["label_mean"])

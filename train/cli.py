@@ -1,0 +1,156 @@
+"""`python -m train fit|evaluate|predict|export`: the trainer's command line."""
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from dataclasses import asdict
+
+import click
+
+from train.errors import TrainError
+
+DEVICE = click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+def cli() -> None:
+    """Train and use a CNN that predicts APPD (% of image diagonal) from appdgen's shards."""
+
+
+@cli.command()
+@click.option("--shards", required=True, help="Folder written by `appdgen build` (build.json, shard-*.tar).")
+@click.option("--run", "--run-dir", "run", required=True,
+              help="Run folder: last.pt, best.pt, log.csv, config.json (--run-dir under torchrun, which claims --run).")
+@click.option("--split", default="train", show_default=True, help="Split to train on.")
+@click.option("--val-split", default="auto", show_default=True,
+              help="Validation split; 'auto' = 'val' if present else a raw-image holdout; 'holdout'; 'none'.")
+@click.option("--val-fraction", default=0.1, show_default=True,
+              help="Fraction of raw images held out (by raw_path hash).")
+@click.option("--steps", type=click.IntRange(1), help="Total optimizer steps (counting resumed ones).")
+@click.option("--epochs", type=click.FloatRange(0, min_open=True), help="Total passes over the training split.")
+@click.option("--batch", default=32, show_default=True, type=click.IntRange(1), help="Images per step per rank.")
+@click.option("--lr", default=1e-4, show_default=True, help="Adam learning rate.")
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(0), help="DataLoader decode workers.")
+@click.option("--ckpt-every", default=200, show_default=True, type=click.IntRange(1), help="Steps between checkpoints.")
+@click.option("--val-every", type=click.IntRange(1), help="Steps between validations [default: --ckpt-every].")
+@click.option("--val-max", default=1000, show_default=True, type=click.IntRange(1), help="Most validation images used.")
+@click.option("--log-every", default=10, show_default=True, type=click.IntRange(1), help="Steps between log.csv rows.")
+@click.option("--max-minutes", type=click.FloatRange(0, min_open=True),
+              help="Stop early, validated and checkpointed, after this wall time (checked every --log-every steps).")
+@click.option("--shuffle-buffer", default=1000, show_default=True, type=click.IntRange(1),
+              help="Samples (encoded) mixed by the shuffle buffer of each loader worker.")
+@click.option("--resume", is_flag=True, help="Continue from RUN/last.pt (starts fresh if there is none).")
+@click.option("--seed", default=0, show_default=True, help="Seed for weights and data order.")
+@DEVICE
+@click.option("--precision", default="auto", show_default=True, type=click.Choice(["auto", "fp32", "bf16"]),
+              help="auto = bf16 autocast on CUDA and on CPUs with native bf16, else fp32.")
+@click.option("--stats-samples", default=256, show_default=True, type=click.IntRange(1),
+              help="Images used for the per-channel mean/std.")
+@click.option("--quiet", is_flag=True, help="No progress line.")
+def fit(**kw) -> None:
+    """Train on one split of the shards; prints a JSON summary."""
+    from train.fit import FitOptions, fit as run_fit
+
+    summary = run_fit(FitOptions(**kw))
+    if summary is not None:  # rank 0 only under torchrun
+        click.echo(json.dumps(summary))
+
+
+@cli.command()
+@click.option("--ckpt", required=True, help="Checkpoint (.pt) written by fit.")
+@click.option("--shards", required=True, help="Folder written by `appdgen build`.")
+@click.option("--split", default="test", show_default=True)
+@click.option("--json", "json_path", help="Also write the metrics to this JSON file.")
+@click.option("--plot", "plot_path", help="Predicted-vs-true APPD plot (PNG; needs matplotlib).")
+@click.option("--threshold", default=1.0, show_default=True, help="APPD % above which a camera needs recalibration.")
+@click.option("--batch", default=64, show_default=True, type=click.IntRange(1))
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(0))
+@DEVICE
+@click.option("--precision", default="fp32", show_default=True, type=click.Choice(["auto", "fp32", "bf16"]))
+def evaluate(ckpt: str, shards: str, split: str, json_path: str | None, plot_path: str | None, threshold: float,
+             batch: int, workers: int, device: str, precision: str) -> None:
+    """MAE, RMSE, mean-predictor MAE, per-bin MAE and P/R/F1 of a checkpoint on one split (JSON)."""
+    from train.evaluate import evaluate as run_eval
+
+    result = run_eval(ckpt, shards, split, json_path, plot_path, threshold, batch, workers, device, precision)
+    click.echo(json.dumps(result, indent=1))
+
+
+@cli.command()
+@click.argument("images", nargs=-1, required=True)
+@click.option("--ckpt", required=True, help="Checkpoint (.pt) written by fit.")
+@click.option("--calib", help="Calibration file: rectify raw images with it first (needs appdgen).")
+@click.option("--camera", help="Camera id inside --calib, e.g. 02.")
+@click.option("--threshold", default=1.0, show_default=True,
+              help="Recalibrate when the running median exceeds this APPD %.")
+@click.option("--window", default=9, show_default=True, type=click.IntRange(1), help="Running-median length (images).")
+@click.option("--batch", default=32, show_default=True, type=click.IntRange(1))
+@click.option("--resize", is_flag=True, help="Rescale rectified images of another size to the network's.")
+@click.option("--csv", "as_csv", is_flag=True, help="CSV output.")
+@click.option("--json", "as_json", is_flag=True, help="JSON output.")
+@DEVICE
+def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str | None, threshold: float,
+            window: int, batch: int, resize: bool, as_csv: bool, as_json: bool, device: str) -> None:
+    """Predicted APPD per image of a sequence (IMAGES… or a folder), running median and verdict."""
+    from train.predict import predict as run_predict
+
+    if as_csv and as_json:
+        raise click.UsageError("--csv and --json are exclusive")
+    preds = run_predict(ckpt, list(images), calib, camera, threshold, window, batch, resize, device)
+    rows = [asdict(p) for p in preds]
+    last = preds[-1]
+    summary = {"images": len(preds), "running_median": last.running_median, "threshold": threshold,
+               "verdict": "recalibrate" if last.recalibrate else "ok"}
+    if as_json:
+        click.echo(json.dumps({"predictions": rows, "summary": summary}, indent=1))
+    elif as_csv:
+        writer = csv.DictWriter(sys.stdout, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    else:
+        for p in preds:
+            verdict = "recalibrate" if p.recalibrate else "ok"
+            click.echo(f"{p.path}\t{p.appd_pct:7.3f}\t{p.running_median:7.3f}\t{verdict}")
+        click.echo(f"# {len(preds)} images, running median {last.running_median:.3f}% "
+                   f"(window {window}) vs threshold {threshold:g}%: {summary['verdict']}")
+
+
+@cli.command()
+@click.option("--ckpt", required=True, help="Checkpoint (.pt) written by fit.")
+@click.option("--onnx", "onnx_path", help="ONNX file to write (needs onnx + onnxscript).")
+@click.option("--torchscript", "ts_path", help="TorchScript file to write.")
+def export(ckpt: str, onnx_path: str | None, ts_path: str | None) -> None:
+    """Export to ONNX and/or TorchScript and print the parity vs eager (max |diff| ≤ 1e-4)."""
+    from train.export import export as run_export
+
+    run_export(ckpt, onnx_path, ts_path)
+
+
+def user_errors() -> tuple[type[Exception], ...]:
+    """Exception types shown as one line: ours, and appdgen's (from --calib loading)."""
+    try:
+        from appdgen.errors import AppdgenError
+    except ImportError:
+        return (TrainError,)
+    return (TrainError, AppdgenError)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point: one-line errors with exit status 2, and a clear message when torch is missing."""
+    try:
+        import torch  # noqa: F401 - only to give a clear message
+    except ImportError:
+        click.echo("error: the trainer needs PyTorch: pip install torch==2.13.0 (CPU) && pip install -e '.[train]'",
+                   err=True)
+        sys.exit(2)
+    try:
+        cli.main(args=argv, prog_name="python -m train", standalone_mode=False)
+    except click.exceptions.Abort:
+        sys.exit(130)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except user_errors() as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)

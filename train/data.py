@@ -1,0 +1,326 @@
+"""Shard discovery, split selection, and a WebDataset stream split across ranks and loader workers."""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import random
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+import webdataset as wds
+from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+
+from train.errors import TrainError
+
+IMAGE_EXTS = ("png", "jpg", "jpeg", "npy")
+#: Slots (rank × worker) may get whole shards only if their sample counts differ by at most this.
+SHARD_BALANCE = 0.10
+
+
+@dataclass(frozen=True)
+class Shard:
+    """One tar shard: its path and how many samples of each split it holds."""
+
+    path: str
+    samples: int
+    splits: Mapping[str, int]
+
+
+@dataclass(frozen=True)
+class ShardSet:
+    """What `appdgen build` wrote into a folder: shards, image size (w, h in pixels), APPD range (%)."""
+
+    root: Path
+    shards: tuple[Shard, ...]
+    size: tuple[int, int] | None
+    appd_max: float | None
+    build: Mapping = field(default_factory=dict)
+
+    def split_count(self, split: str) -> int:
+        """Samples of one split over all shards."""
+        return sum(s.splits.get(split, 0) for s in self.shards)
+
+    def for_split(self, split: str) -> tuple[Shard, ...]:
+        """Only the shards that hold the split (saves reading the others)."""
+        return tuple(s for s in self.shards if s.splits.get(split, 0) > 0)
+
+
+def open_shards(root: str | Path) -> ShardSet:
+    """Read OUT/build.json; without one, fall back to OUT/shard-*.tar with unknown split counts."""
+    root = Path(root)
+    if not root.is_dir():
+        raise TrainError(f"{root}: no such shard folder (expected the output of `appdgen build`)")
+    build_path = root / "build.json"
+    if not build_path.is_file():
+        return _glob_shards(root)
+    try:
+        build = json.loads(build_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise TrainError(f"{build_path}: unreadable build.json ({exc})") from None
+    shards = tuple(
+        Shard(str(root / s["file"]), int(s.get("samples", 0)), dict(s["splits"]) if "splits" in s else _AllSplits())
+        for s in build.get("shards", [])
+    )
+    if not shards:
+        raise TrainError(f"{build_path}: lists no shards")
+    missing = [s.path for s in shards if not Path(s.path).is_file()]
+    if missing:
+        raise TrainError(f"{build_path}: {len(missing)} listed shard(s) missing, e.g. {missing[0]}")
+    size = tuple(build["size"]) if build.get("size") else None
+    appd_max = float(build["appd_max"]) if build.get("appd_max") is not None else None
+    return ShardSet(root, shards, size, appd_max, build)
+
+
+def _glob_shards(root: Path) -> ShardSet:
+    """Shards found by name when build.json is missing; every shard is read for every split."""
+    paths = sorted(root.glob("shard-*.tar"))
+    if not paths:
+        raise TrainError(f"{root}: neither build.json nor shard-*.tar found")
+    everything = _AllSplits()
+    return ShardSet(root, tuple(Shard(str(p), 0, everything) for p in paths), None, None)
+
+
+class _AllSplits(dict):
+    """A splits mapping that claims every split, for shards of unknown content."""
+
+    def get(self, key: str, default: int = 0) -> int:  # noqa: ARG002 - dict signature
+        """Any split may be present: 1 means 'read this shard'."""
+        return 1
+
+
+def read_labels(root: Path) -> dict[str, list] | None:
+    """Columns key, split, raw_path, appd_pct of OUT/labels.parquet, or None when absent."""
+    path = root / "labels.parquet"
+    if not path.is_file():
+        return None
+    import pyarrow.parquet as pq
+
+    cols = pq.read_table(path, columns=["key", "split", "raw_path", "appd_pct"]).to_pydict()
+    cols["key"] = [str(k) for k in cols["key"]]  # json keys are strings; match them whatever parquet typed
+    return cols
+
+
+def in_holdout(ident: str, fraction: float) -> bool:
+    """Deterministic, platform-independent coin: is this raw image in the held-out fraction?"""
+    h = int.from_bytes(hashlib.sha1(ident.encode()).digest()[:8], "big")
+    return h / 2**64 < fraction
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Which samples a stream yields: one split, optionally one side of a raw-image holdout."""
+
+    split: str
+    holdout: float = 0.0
+    side: str = "train"  # "train" keeps the rest, "val" keeps the held-out raw images
+    raw_paths: Mapping[str, str] | None = None
+
+    def accepts(self, meta: Mapping) -> bool:
+        """True when a sample's json metadata belongs to this selection."""
+        if meta.get("split") != self.split:
+            return False
+        if self.holdout <= 0:
+            return True
+        key = str(meta.get("key", ""))
+        ident = meta.get("raw_path") or (self.raw_paths or {}).get(key) or key
+        return in_holdout(str(ident), self.holdout) == (self.side == "val")
+
+    def describe(self) -> str:
+        """Human-readable summary for logs and checkpoints."""
+        if self.holdout <= 0:
+            return f"split={self.split}"
+        return f"split={self.split}, {self.side} side of a {self.holdout:.0%} raw_path-hash holdout"
+
+
+def count_selected(labels: Mapping[str, list] | None, sel: Selection) -> int | None:
+    """Samples a selection yields, from labels.parquet; None when unknown."""
+    if labels is None:
+        return None
+    rows = zip(labels["key"], labels["split"], labels["raw_path"])
+    return sum(sel.accepts({"key": k, "split": s, "raw_path": r}) for k, s, r in rows)
+
+
+def decode_image(data: bytes, ext: str, where: str) -> np.ndarray:
+    """H×W×3 uint8 image from PNG/JPEG bytes (OpenCV BGR order) or .npy bytes (taken as stored)."""
+    if ext == "npy":
+        arr = np.load(io.BytesIO(data), allow_pickle=False)
+    else:
+        arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if arr is None or arr.dtype != np.uint8 or arr.ndim != 3 or arr.shape[2] != 3:
+        got = "undecodable" if arr is None else f"{arr.dtype} {arr.shape}"
+        raise TrainError(f"{where}: expected a 3-channel 8-bit image, got {got}")
+    return arr
+
+
+def image_entry(sample: Mapping) -> tuple[str, bytes]:
+    """(extension, bytes) of a webdataset sample's image member."""
+    for ext in IMAGE_EXTS:
+        if ext in sample:
+            return ext, sample[ext]
+    raise TrainError(f"{sample.get('__url__')}: sample {sample.get('__key__')} has no .png/.jpg/.npy image")
+
+
+def slot_loads(counts: list[int], slots: int) -> list[int]:
+    """Samples each slot gets when shard i goes to slot i mod slots (wds split_by_node∘split_by_worker)."""
+    return [sum(counts[i::slots]) for i in range(slots)]
+
+
+def shard_mode_ok(counts: list[int], slots: int) -> bool:
+    """Whole shards per slot only if every slot gets a near-equal share; else split sample by sample."""
+    if slots == 1:
+        return True
+    loads = slot_loads(counts, slots)
+    return min(loads) > 0 and (max(loads) - min(loads)) <= SHARD_BALANCE * max(loads)
+
+
+@dataclass(frozen=True)
+class StreamSpec:
+    """A stream of one selection over some shards, for one rank of `world` (captured at build time)."""
+
+    shards: tuple[Shard, ...]
+    selection: Selection
+    size: tuple[int, int] | None = None
+    loop: bool = False
+    shuffle: bool = False
+    seed: int = 0
+    epoch0: int = 0
+    buffer: int = 256
+    rank: int = 0
+    world: int = 1
+    force_sample_mode: bool = False
+    limit: int | None = None
+
+
+class ShardStream(IterableDataset):
+    """Yields {"image": uint8 3×H×W, "label": float32 APPD %, "key": str}; each sample once per pass.
+
+    Slots are (rank, worker) pairs. When the shards divide evenly among slots, each slot reads whole
+    shards (as wds.split_by_node then wds.split_by_worker would); otherwise every slot reads all
+    shards and keeps the accepted samples whose ordinal ≡ slot (mod slots). Either way the slots
+    partition the data: no duplicates, no loss. Rank and world are taken from the spec rather than
+    from torch.distributed so that spawned loader workers agree with their parent.
+    """
+
+    def __init__(self, spec: StreamSpec) -> None:
+        super().__init__()
+        self.spec = spec
+
+    def slot(self) -> tuple[int, int]:
+        """(this slot, number of slots) across ranks × loader workers."""
+        info = get_worker_info()
+        worker, workers = (info.id, info.num_workers) if info else (0, 1)
+        return self.spec.rank * workers + worker, self.spec.world * workers
+
+    def __iter__(self) -> Iterator[dict]:
+        """Passes over the data, forever when spec.loop, reshuffled each pass when spec.shuffle."""
+        slot, slots = self.slot()
+        epoch = self.spec.epoch0
+        produced = 0
+        while True:
+            before = produced
+            for sample in self._one_pass(slot, slots, epoch):
+                yield sample
+                produced += 1
+                if self.spec.limit is not None and produced >= self.spec.limit:
+                    return
+            if not self.spec.loop or produced == before:  # an empty pass would spin forever
+                return
+            epoch += 1
+
+    def _one_pass(self, slot: int, slots: int, epoch: int) -> Iterator[dict]:
+        """One pass of this slot's share, optionally shuffled through a buffer, decoded last."""
+        spec = self.spec
+        counts = [s.splits.get(spec.selection.split, 0) for s in spec.shards]
+        by_shard = not spec.force_sample_mode and shard_mode_ok(counts, slots)
+        shards = list(spec.shards[slot::slots] if by_shard else spec.shards)
+        rng = random.Random(f"{spec.seed}/{epoch}/{slot}")
+        if spec.shuffle:
+            rng.shuffle(shards)  # per-slot order: fine, since the assignment is fixed above
+        raw = self._accepted(shards)
+        if not by_shard:
+            raw = (m for i, m in enumerate(raw) if i % slots == slot)
+        if spec.shuffle:
+            raw = _buffer_shuffle(raw, spec.buffer, rng)
+        for meta, ext, data, url in raw:
+            yield self._decode(meta, ext, data, url)
+
+    def _accepted(self, shards: list[Shard]) -> Iterator[tuple[dict, str, bytes, str]]:
+        """(json, image ext, image bytes, shard path) of accepted samples, image not yet decoded."""
+        urls = [{"url": s.path} for s in shards]
+        for sample in wds.tarfile_to_samples()(iter(urls)):
+            url = sample.get("__url__", "?")
+            if "json" not in sample:
+                raise TrainError(f"{url}: sample {sample.get('__key__')} has no .json metadata")
+            meta = json.loads(sample["json"])
+            if self.spec.selection.accepts(meta):
+                ext, data = image_entry(sample)
+                yield meta, ext, data, url
+
+    def _decode(self, meta: dict, ext: str, data: bytes, url: str) -> dict:
+        """Decoded, size-checked sample."""
+        where = f"{url}: sample {meta.get('key')}"
+        img = decode_image(data, ext, where)
+        if self.spec.size is not None and (img.shape[1], img.shape[0]) != tuple(self.spec.size):
+            w, h = self.spec.size
+            raise TrainError(f"{where}: image is {img.shape[1]}x{img.shape[0]}, expected {w}x{h}")
+        label = meta.get("appd_pct")
+        if label is None:
+            raise TrainError(f"{where}: json has no appd_pct label")
+        return {
+            "image": torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1))),
+            "label": torch.tensor(float(label), dtype=torch.float32),
+            "key": str(meta.get("key", "")),
+        }
+
+
+def _buffer_shuffle(items: Iterator, size: int, rng: random.Random) -> Iterator:
+    """Approximate shuffle with a bounded buffer (holds encoded bytes, so memory stays small)."""
+    buf: list = []
+    for item in items:
+        if len(buf) < size:
+            buf.append(item)
+            continue
+        i = rng.randrange(size)
+        buf[i], item = item, buf[i]
+        yield item
+    rng.shuffle(buf)
+    yield from buf
+
+
+def make_loader(spec: StreamSpec, batch: int, workers: int) -> DataLoader:
+    """Batched DataLoader over a ShardStream (workers decode; batches stay uint8 until the device)."""
+    return DataLoader(
+        ShardStream(spec),
+        batch_size=batch,
+        num_workers=workers,
+        persistent_workers=False,
+        pin_memory=torch.cuda.is_available(),
+        prefetch_factor=4 if workers > 0 else None,
+    )
+
+
+def channel_stats(spec: StreamSpec, n: int, n_total: int | None) -> tuple[list[float], list[float], list[float]]:
+    """Per-channel mean and std of pixels in [0, 1] over ~n samples spread evenly, plus their labels."""
+    stride = max(1, (n_total or n) // n)
+    # A 'world' of `stride` ranks in sample mode picks every stride-th sample: spread, not the first n.
+    sub = StreamSpec(spec.shards, spec.selection, spec.size, world=stride, force_sample_mode=True, limit=n)
+    total = np.zeros(3)
+    total_sq = np.zeros(3)
+    pixels = 0
+    labels: list[float] = []
+    for sample in ShardStream(sub):
+        img = sample["image"].numpy().reshape(3, -1).astype(np.float64) / 255.0
+        total += img.sum(1)
+        total_sq += (img**2).sum(1)
+        pixels += img.shape[1]
+        labels.append(float(sample["label"]))
+    if pixels == 0:
+        raise TrainError(f"no samples for {spec.selection.describe()} in {len(spec.shards)} shard(s)")
+    mean = total / pixels
+    std = np.sqrt(np.maximum(total_sq / pixels - mean**2, 1e-12))
+    return mean.tolist(), np.maximum(std, 1e-3).tolist(), labels

@@ -1,0 +1,142 @@
+"""`evaluate`: error metrics of a checkpoint on one split, per APPD bin, plus a predicted-vs-true plot."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from train import checkpoint, runtime
+from train.data import Selection, StreamSpec, make_loader, open_shards
+from train.errors import TrainError
+from train.fit import to_input
+from train.model import AppdNet
+
+N_BINS = 10
+
+
+@torch.no_grad()
+def predict_split(model: AppdNet, loader, device: torch.device, dtype) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """(keys, true APPD %, predicted APPD %) over every sample a loader yields."""
+    keys: list[str] = []
+    true: list[np.ndarray] = []
+    pred: list[np.ndarray] = []
+    for batch in loader:
+        with runtime.autocast(device, dtype):
+            out = model(to_input(batch, device)).float()
+        keys += list(batch["key"])
+        true.append(batch["label"].numpy())
+        pred.append(out.cpu().numpy())
+    if not keys:
+        raise TrainError("no samples to evaluate")
+    return keys, np.concatenate(true).astype(float), np.concatenate(pred).astype(float)
+
+
+def bin_edges(appd_max: float, n_bins: int = N_BINS) -> np.ndarray:
+    """n_bins + 1 equal-width edges over [0, appd_max] (APPD %)."""
+    return np.linspace(0.0, appd_max, n_bins + 1)
+
+
+def bin_index(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Bin of each value; values past the last edge go to the last bin, below 0 to the first."""
+    return np.clip(np.searchsorted(edges, values, side="right") - 1, 0, len(edges) - 2)
+
+
+def per_bin(y_true: np.ndarray, y_pred: np.ndarray, edges: np.ndarray) -> list[dict]:
+    """MAE and mean prediction per true-APPD bin (null where a bin is empty)."""
+    idx = bin_index(y_true, edges)
+    rows = []
+    for b in range(len(edges) - 1):
+        m = idx == b
+        n = int(m.sum())
+        rows.append({
+            "lo": float(edges[b]), "hi": float(edges[b + 1]), "n": n,
+            "mae": float(np.abs(y_pred[m] - y_true[m]).mean()) if n else None,
+            "pred_mean": float(y_pred[m].mean()) if n else None,
+        })
+    return rows
+
+
+def classification(y_true: np.ndarray, y_pred: np.ndarray, threshold: float) -> dict:
+    """Precision, recall and F1 of 'APPD > threshold' (null where a ratio is 0/0)."""
+    t, p = y_true > threshold, y_pred > threshold
+    tp, fp, fn = int((t & p).sum()), int((~t & p).sum()), int((t & ~p).sum())
+    precision = tp / (tp + fp) if tp + fp else None
+    recall = tp / (tp + fn) if tp + fn else None
+    f1 = 2 * precision * recall / (precision + recall) if precision and recall else (0.0 if tp + fp + fn else None)
+    return {"threshold": threshold, "precision": precision, "recall": recall, "f1": f1,
+            "tp": tp, "fp": fp, "fn": fn, "tn": int((~t & ~p).sum())}
+
+
+def metrics(y_true: np.ndarray, y_pred: np.ndarray, label_mean: float, appd_max: float, threshold: float) -> dict:
+    """MAE, RMSE, the mean predictor's MAE, per-bin MAE and threshold classification (APPD %)."""
+    err = y_pred - y_true
+    mae = float(np.abs(err).mean())
+    base = float(np.abs(label_mean - y_true).mean())
+    return {
+        "n": int(len(y_true)), "mae": mae, "rmse": float(np.sqrt((err**2).mean())),
+        "median_abs_error": float(np.median(np.abs(err))),
+        "mean_predictor_mae": base, "mae_vs_mean_predictor": mae / base if base > 0 else None,
+        "train_label_mean": label_mean, "appd_max": appd_max,
+        "bins": per_bin(y_true, y_pred, bin_edges(appd_max)),
+        "classification": classification(y_true, y_pred, threshold),
+    }
+
+
+def plot(y_true: np.ndarray, y_pred: np.ndarray, appd_max: float, threshold: float, path: Path, title: str) -> bool:
+    """Box plots of predictions per true-APPD bin vs the identity line; False when matplotlib is absent."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("evaluate: matplotlib not installed (pip install -e .[plot]); skipping the plot", file=sys.stderr)
+        return False
+    edges = bin_edges(appd_max)
+    idx = bin_index(y_true, edges)
+    groups = [(0.5 * (edges[b] + edges[b + 1]), y_pred[idx == b]) for b in range(len(edges) - 1)]
+    groups = [(c, g) for c, g in groups if len(g)]
+    width = 0.7 * (edges[1] - edges[0])
+    fig, ax = plt.subplots(figsize=(7, 5), dpi=110)
+    ax.boxplot([g for _, g in groups], positions=[c for c, _ in groups], widths=width, manage_ticks=False,
+               showfliers=True, flierprops={"markersize": 2})
+    ax.plot([0, appd_max], [0, appd_max], "--", color="tab:green", label="ideal")
+    ax.axhline(threshold, color="tab:red", lw=0.8, label=f"threshold {threshold:g}%")
+    ax.set(xlabel="true APPD (% of diagonal), binned", ylabel="predicted APPD (% of diagonal)", title=title,
+           xlim=(0, appd_max))
+    ax.legend(loc="upper left")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return True
+
+
+def evaluate(ckpt_path: str, shards: str, split: str, json_path: str | None = None, plot_path: str | None = None,
+             threshold: float = 1.0, batch: int = 64, workers: int = 1, device: str = "auto",
+             precision: str = "fp32") -> dict:
+    """Run the checkpoint over one split of the shards; returns (and optionally writes) the metrics."""
+    dev = runtime.pick_device(device)
+    runtime.setup_threads(dev)
+    ckpt = checkpoint.load(ckpt_path)
+    model = checkpoint.build_model(ckpt).to(dev).to(memory_format=torch.channels_last)
+    ss = open_shards(shards)
+    if ss.build and ss.split_count(split) == 0:
+        raise TrainError(f"{ss.root}: no samples of split {split!r}")
+    cfg = model.cfg
+    spec = StreamSpec(ss.for_split(split), Selection(split), (cfg.width, cfg.height))
+    _, y_true, y_pred = predict_split(model, make_loader(spec, batch, workers), dev,
+                                      runtime.autocast_dtype(dev, precision))
+    appd_max = ss.appd_max or ckpt["config"].get("appd_max") or float(max(y_true.max(), 1e-6))
+    result = {"checkpoint": str(ckpt_path), "shards": str(ss.root), "split": split,
+              **metrics(y_true, y_pred, checkpoint.label_mean(ckpt), appd_max, threshold)}
+    if json_path:
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+        Path(json_path).write_text(json.dumps(result, indent=1))
+    if plot_path:
+        title = f"{split}: MAE {result['mae']:.3f}% (mean predictor {result['mean_predictor_mae']:.3f}%)"
+        result["plot"] = str(plot_path) if plot(y_true, y_pred, appd_max, threshold, Path(plot_path), title) else None
+    return result

@@ -1,0 +1,118 @@
+"""`export`: TorchScript and ONNX files of a checkpoint, each checked against eager PyTorch."""
+from __future__ import annotations
+
+import json
+import logging
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from train import checkpoint
+from train.errors import TrainError
+from train.model import AppdNet
+
+#: Largest |exported − eager| accepted, in APPD % (the model's output unit).
+TOLERANCE = 1e-4
+
+
+def metadata(model: AppdNet, ckpt: dict) -> dict:
+    """What a deployment needs to feed the exported model: input layout, range, order, output unit."""
+    cfg = model.cfg
+    return {
+        "input": f"float32 N x 3 x {cfg.height} x {cfg.width}, values in [0, 1], channel order {cfg.channels}",
+        "output": "float32 N: predicted APPD, % of the raw image diagonal",
+        "normalization": "included in the model", "width": cfg.width, "height": cfg.height,
+        "channels": cfg.channels, "label_mean": checkpoint.label_mean(ckpt), "step": int(ckpt["step"]),
+    }
+
+
+def example(model: AppdNet, n: int = 2, seed: int = 0) -> torch.Tensor:
+    """A reproducible random input batch at the network size."""
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(n, 3, model.cfg.height, model.cfg.width, generator=g)
+
+
+def to_torchscript(model: AppdNet, path: Path, meta: dict) -> float:
+    """Trace to TorchScript (config in extra file config.json); returns max |diff| vs eager on a new batch."""
+    with warnings.catch_warnings():
+        # torch 2.13 deprecates torch.jit in favour of torch.export; TorchScript is still what C++/mobile load.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        traced = torch.jit.trace(model, example(model))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.jit.save(traced, str(path), _extra_files={"config.json": json.dumps(meta)})
+        loaded = torch.jit.load(str(path))
+    x = example(model, n=3, seed=1)  # a different batch size: tracing must not have frozen it
+    with torch.no_grad():
+        return float((loaded(x) - model(x)).abs().max())
+
+
+def to_onnx(model: AppdNet, path: Path, meta: dict) -> float | None:
+    """Export ONNX (dynamic batch, one file); returns max |diff| vs eager, None if no runtime to check."""
+    try:
+        import onnx
+        import onnxscript  # noqa: F401 - torch's exporter needs it; fail early with our message
+    except ImportError as exc:
+        raise TrainError(f"ONNX export needs the onnx and onnxscript packages ({exc}); "
+                         "pip install -e .[train] or omit --onnx") from None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    batch = torch.export.Dim("batch", min=1)
+    # torch's exporter logs optional-torchvision notices and upstream deprecations: noise for our users.
+    logging.getLogger("torch.onnx").setLevel(logging.ERROR)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        torch.onnx.export(model, (example(model),), str(path), input_names=["image"], output_names=["appd_pct"],
+                          dynamic_shapes={"x": {0: batch}}, external_data=False, verbose=False)
+    proto = onnx.load(str(path))
+    onnx.helper.set_model_props(proto, {k: str(v) for k, v in meta.items()})
+    onnx.save(proto, str(path))
+    x = example(model, n=3, seed=1)
+    got = run_onnx(path, x.numpy())
+    if got is None:
+        return None
+    with torch.no_grad():
+        return float(np.abs(got - model(x).numpy()).max())
+
+
+def run_onnx(path: Path, x: np.ndarray) -> np.ndarray | None:
+    """Run an ONNX file with onnxruntime, else onnx's reference evaluator; None if neither exists."""
+    try:
+        import onnxruntime as ort
+
+        return ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"image": x})[0]
+    except ImportError:
+        pass
+    try:
+        from onnx.reference import ReferenceEvaluator
+    except ImportError:
+        return None
+    return ReferenceEvaluator(str(path)).run(None, {"image": x})[0]
+
+
+def check(name: str, diff: float | None) -> None:
+    """Print the parity result; raise when it exceeds the tolerance."""
+    if diff is None:
+        print(f"export: {name}: written; parity not checked (no onnxruntime or onnx reference evaluator)")
+        return
+    verdict = "ok" if diff <= TOLERANCE else "FAILED"
+    print(f"export: {name}: max |exported - eager| = {diff:.2e} APPD % (tolerance {TOLERANCE:g}) {verdict}")
+    if diff > TOLERANCE:
+        raise TrainError(f"{name}: exported model disagrees with eager PyTorch by {diff:.2e}")
+
+
+def export(ckpt_path: str, onnx_path: str | None = None, torchscript_path: str | None = None) -> dict:
+    """Write the requested files, printing a parity line for each; returns {format: max diff}."""
+    if not onnx_path and not torchscript_path:
+        raise TrainError("nothing to export: give --onnx and/or --torchscript")
+    ckpt = checkpoint.load(ckpt_path)
+    model = checkpoint.build_model(ckpt)
+    meta = metadata(model, ckpt)
+    result: dict[str, float | None] = {}
+    if torchscript_path:
+        result["torchscript"] = to_torchscript(model, Path(torchscript_path), meta)
+        check(str(torchscript_path), result["torchscript"])
+    if onnx_path:
+        result["onnx"] = to_onnx(model, Path(onnx_path), meta)
+        check(str(onnx_path), result["onnx"])
+    return result

@@ -1,0 +1,118 @@
+"""The paper's CNN: 7 conv blocks, then dense 512 → 128 → 1 regressing APPD (% of diagonal)."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+from train.errors import TrainError
+
+#: Filters per block (Cramariuc et al. 2020): each block is conv3×3+ReLU, conv3×3+ReLU, maxpool 2×2.
+PAPER_FILTERS: tuple[int, ...] = (32, 32, 32, 64, 128, 128, 128)
+PAPER_DENSE: tuple[int, ...] = (512, 128)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Network input size (pixels), layer widths and the normalisation baked into the model."""
+
+    width: int
+    height: int
+    filters: tuple[int, ...] = PAPER_FILTERS
+    dense: tuple[int, ...] = PAPER_DENSE
+    dropout: float = 0.5
+    mean: tuple[float, ...] = (0.5, 0.5, 0.5)
+    std: tuple[float, ...] = (0.25, 0.25, 0.25)
+    channels: str = "bgr"
+
+    def to_dict(self) -> dict:
+        """Plain dict (lists, numbers, str) safe for weights_only checkpoints."""
+        d = asdict(self)
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ModelConfig":
+        """Inverse of to_dict; unknown keys are ignored so newer checkpoints still load."""
+        names = set(cls.__dataclass_fields__)
+        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in names}
+        return cls(**kw)
+
+
+def min_side(n_blocks: int = len(PAPER_FILTERS)) -> int:
+    """Smallest image side (pixels) that survives n_blocks 2×2 max-pools with ≥ 1 pixel left."""
+    return 2**n_blocks
+
+
+def feature_size(width: int, height: int, n_blocks: int) -> tuple[int, int]:
+    """Spatial size (w, h) left after n_blocks floor-halving max-pools."""
+    for _ in range(n_blocks):
+        width, height = width // 2, height // 2
+    return width, height
+
+
+def check_size(width: int, height: int, n_blocks: int = len(PAPER_FILTERS)) -> None:
+    """Raise a clear TrainError when an image is too small for the network's poolings."""
+    need = min_side(n_blocks)
+    if width < need or height < need:
+        raise TrainError(
+            f"images are {width}x{height} px but the network's {n_blocks} 2x2 max-pools need at least "
+            f"{need}x{need} px; build the shards with a larger --size"
+        )
+
+
+class Normalize(nn.Module):
+    """(x − mean) / std per channel, x in [0, 1]; buffers so exports carry the statistics."""
+
+    def __init__(self, mean: tuple[float, ...], std: tuple[float, ...]) -> None:
+        super().__init__()
+        self.register_buffer("mean", torch.tensor(mean, dtype=torch.float32).view(1, -1, 1, 1))
+        self.register_buffer("std", torch.tensor(std, dtype=torch.float32).view(1, -1, 1, 1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Normalised image batch."""
+        return (x - self.mean) / self.std
+
+
+def conv_block(c_in: int, c_out: int) -> nn.Sequential:
+    """conv3×3 + ReLU, conv3×3 + ReLU, maxpool 2×2 ('same' padding, as in the paper's Keras model)."""
+    return nn.Sequential(
+        nn.Conv2d(c_in, c_out, 3, padding=1), nn.ReLU(inplace=True),
+        nn.Conv2d(c_out, c_out, 3, padding=1), nn.ReLU(inplace=True),
+        nn.MaxPool2d(2),
+    )
+
+
+class AppdNet(nn.Module):
+    """Image batch N×3×H×W, float in [0, 1] (channel order cfg.channels) → predicted APPD (% of diagonal), N."""
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        check_size(cfg.width, cfg.height, len(cfg.filters))
+        self.cfg = cfg
+        self.normalize = Normalize(cfg.mean, cfg.std)
+        chans = (3, *cfg.filters)
+        self.features = nn.Sequential(*(conv_block(a, b) for a, b in zip(chans, chans[1:])))
+        # Flatten, not global pooling: where an error shows in the image (centre vs border) carries
+        # information about distortion, and the paper flattens too. Fixes the input size to cfg's.
+        fw, fh = feature_size(cfg.width, cfg.height, len(cfg.filters))
+        sizes = (cfg.filters[-1] * fw * fh, *cfg.dense)
+        layers: list[nn.Module] = [nn.Flatten()]
+        for i, (a, b) in enumerate(zip(sizes, sizes[1:])):
+            layers += [nn.Linear(a, b), nn.ReLU(inplace=True)]
+            if i == 0:
+                layers.append(nn.Dropout(cfg.dropout))
+        layers.append(nn.Linear(sizes[-1], 1))
+        self.head = nn.Sequential(*layers)
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        """Xavier-uniform weights and zero biases, as Keras' default glorot init in the paper."""
+        for m in self.modules():
+            if isinstance(m, (nn.Conv2d, nn.Linear)):
+                nn.init.xavier_uniform_(m.weight)
+                nn.init.zeros_(m.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Predicted APPD per image (% of raw diagonal)."""
+        return self.head(self.features(self.normalize(x))).squeeze(1)

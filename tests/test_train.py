@@ -262,38 +262,21 @@ def test_running_median_verdict():
     assert [p.recalibrate for p in preds] == [False, True, False, True, True]
 
 
-def fake_appdgen(monkeypatch, seen: dict) -> None:
-    """Stand-ins for appdgen.formats/maps/render: 'rectify' by resizing, recording the calls."""
+def test_predict_with_calib_rectifies_raw_images(trained, tmp_path, capsys):
     from appdgen import Calibration
+    from appdgen.formats import save
 
-    def rectification_maps(calib, size):
-        seen["size"] = tuple(size)
-        return ("map_x", "map_y")
-
-    def remap_image(raw, maps, interp="linear"):
-        seen["interp"] = interp
-        return cv2.resize(raw, seen["size"])
-
-    def load(path, camera):
-        seen["camera"] = camera
-        return Calibration(200, 150, 100, 100, 100, 75)
-
-    mods = {"appdgen.formats": {"load": load},
-            "appdgen.maps": {"rectification_maps": rectification_maps},
-            "appdgen.render": {"remap_image": remap_image}}
-    for name, attrs in mods.items():
-        monkeypatch.setitem(sys.modules, name, types.SimpleNamespace(**attrs))
-
-
-def test_predict_with_calib_rectifies_raw_images(trained, tmp_path, monkeypatch, capsys):
-    seen: dict = {}
-    fake_appdgen(monkeypatch, seen)
+    # A square raw camera (the network input is 128x128), rectified by appdgen itself before the model sees it.
+    save(Calibration(256, 256, 200.0, 200.0, 127.5, 127.5, -0.1, 0.01), tmp_path / "calib.yaml")
     raw = tmp_path / "raw.png"
-    cv2.imwrite(str(raw), np.full((150, 200, 3), 90, np.uint8))
-    out = run_cli(["predict", "--ckpt", trained / "last.pt", "--calib", tmp_path / "calib.yaml", "--camera", "02",
-                   raw, "--json"], capsys)
-    assert seen["size"] == (128, 128) and seen["interp"] == "lanczos4" and seen["camera"] == "02"
+    cv2.imwrite(str(raw), np.full((256, 256, 3), 90, np.uint8))
+    out = run_cli(["predict", "--ckpt", trained / "last.pt", "--calib", tmp_path / "calib.yaml", raw, "--json"],
+                  capsys)
     assert len(json.loads(out)["predictions"]) == 1
+    cv2.imwrite(str(raw), np.full((100, 256, 3), 90, np.uint8))
+    with pytest.raises(SystemExit) as exc:
+        run_cli(["predict", "--ckpt", trained / "last.pt", "--calib", tmp_path / "calib.yaml", raw], capsys)
+    assert exc.value.code == 2 and "256x256" in capsys.readouterr().err
 
 
 def test_predict_calib_without_appdgen_support_is_a_clear_error(trained, tmp_path, monkeypatch, capsys):

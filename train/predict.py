@@ -71,19 +71,19 @@ def rectifier(calib_path: str, camera: str | None, size: tuple[int, int]) -> Pre
     """Rectify raw images with a calibration (cropped, rescaled to size) as a deployed robot would."""
     try:
         from appdgen.formats import load
-        from appdgen.maps import rectification_maps
+        from appdgen.maps import rectify
         from appdgen.render import remap_image
     except ImportError as exc:
         raise TrainError(f"--calib needs appdgen's formats/maps/render modules, which are missing here ({exc}); "
                          "rectify the images with `appdgen` first and predict without --calib") from None
     calib = load(calib_path, camera)
-    maps = rectification_maps(calib, size)
+    rect = rectify(calib, size)
 
     def prep(img: np.ndarray, where: str) -> np.ndarray:
         if (img.shape[1], img.shape[0]) != tuple(calib.size):
             raise TrainError(f"{where}: raw image is {img.shape[1]}x{img.shape[0]} but {calib_path} "
                              f"describes a {calib.width}x{calib.height} camera")
-        return remap_image(img, maps, interp="lanczos4")
+        return remap_image(img, rect, interp="lanczos4")
     return prep
 
 

@@ -6,6 +6,8 @@ import secrets
 from contextlib import suppress
 from pathlib import Path
 
+from appdgen.errors import AppdgenError
+
 
 def atomic_write(target: Path, data: bytes) -> None:
     """Write bytes to a synced temporary file beside `target`, then rename it over `target` (OSError passes)."""
@@ -20,3 +22,12 @@ def atomic_write(target: Path, data: bytes) -> None:
     finally:
         with suppress(OSError):
             temporary.unlink(missing_ok=True)
+
+
+def write_file(target: Path, data: bytes) -> None:
+    """atomic_write after creating the parent folders; OS failures become one AppdgenError line naming the file."""
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(target, data)
+    except OSError as exc:
+        raise AppdgenError(f"{target}: cannot write: {exc.strerror or exc}") from None

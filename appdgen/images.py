@@ -6,7 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from appdgen.atomic import atomic_write
+from appdgen.atomic import write_file
 from appdgen.errors import AppdgenError
 
 
@@ -40,9 +40,4 @@ def encode_image(image: np.ndarray, ext: str) -> bytes:
 def write_image(path: Path, image: np.ndarray) -> None:
     """Write an image atomically (temp file, then rename); format from the extension."""
     ext = path.suffix.lower().replace(".jpeg", ".jpg")
-    data = encode_image(image, ext if ext in (".png", ".jpg", ".npy") else ".png")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, data)
-    except OSError as exc:
-        raise AppdgenError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    write_file(path, encode_image(image, ext if ext in (".png", ".jpg", ".npy") else ".png"))

@@ -1,0 +1,119 @@
+"""Figures for the analyses (optional extra ``plot``: matplotlib is imported only when a figure is drawn)."""
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from appdgen.analysis import ReprojectionStudy, spearman
+from appdgen.atomic import write_file
+from appdgen.calibration import DISTORTION, FOCAL, PARAMS
+from appdgen.errors import AppdgenError
+
+_STYLE = {name: "-" for name in FOCAL} | {name: ":" for name in DISTORTION} | {"cx": "--", "cy": "--"}
+_SCENARIO_TITLES = {
+    "synthetic": "(a) synthetic: the reference camera's image\nrectified with the sampled calibration",
+    "physical": "(b) physical: the camera drifted to the sampled calibration,\nits image rectified with the reference one",
+}
+
+
+def require() -> None:
+    """Raise AppdgenError unless matplotlib (the optional ``plot`` extra) is importable."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise AppdgenError("--plot needs matplotlib: pip install 'appdgen[plot]'") from None
+
+
+def _figure(width: float, height: float) -> Any:
+    """A matplotlib Figure not tied to any GUI backend (no pyplot state)."""
+    require()
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(width, height), layout="constrained")
+
+
+def _save(fig: Any, path: Path) -> None:
+    """Render to PNG (or the format the extension names) and write atomically."""
+    kind = path.suffix.lstrip(".").lower() or "png"
+    buffer = io.BytesIO()
+    try:
+        fig.savefig(buffer, format=kind, dpi=100)
+    except ValueError as exc:  # an extension matplotlib cannot write
+        raise AppdgenError(f"{path}: {exc}") from None
+    write_file(path, _palette_png(buffer.getvalue()) if kind == "png" else buffer.getvalue())
+
+
+def _palette_png(data: bytes) -> bytes:
+    """The PNG with a 256-colour palette: about a third of the bytes, no visible change for these plots."""
+    from PIL import Image  # a dependency of matplotlib
+
+    output = io.BytesIO()
+    Image.open(io.BytesIO(data)).convert("RGB").quantize(256).save(output, format="PNG", optimize=True)
+    return output.getvalue()
+
+
+def plot_sweep(path: Path, fractions: np.ndarray, curves: Mapping[str, np.ndarray], title: str,
+               diagonal: float) -> None:
+    """APPD (% of the diagonal, and raw px) against t (%), one line per parameter; linear and log panels."""
+    fig = _figure(11, 5.0)
+    linear, log = fig.subplots(1, 2)
+    colours = dict(zip(PARAMS, [f"C{i}" for i in range(len(PARAMS))]))
+    for name, values in curves.items():
+        for ax in (linear, log):
+            ax.plot(100 * fractions, values, _STYLE[name], color=colours[name], label=name, lw=1.8)
+    log.set_yscale("log", nonpositive="mask")  # p1, p2, k3 sit orders of magnitude below cx: only log shows them
+    for ax, kind in ((linear, "linear"), (log, "log")):
+        ax.set_xlabel("parameter change t (%): value × (1 + t)")
+        ax.set_ylabel("APPD (% of image diagonal)")
+        ax.set_title(f"{kind} scale")
+        ax.grid(True, which="major", alpha=0.3)
+        ax.axvline(0, color="0.5", lw=0.8)
+    pixels = linear.secondary_yaxis("right", functions=(lambda p: p * diagonal / 100, lambda x: x * 100 / diagonal))
+    pixels.set_ylabel("APPD (raw px)")
+    fig.legend(*linear.get_legend_handles_labels(), loc="outside lower center", ncol=len(curves),
+               title="parameter changed (solid: focal length, dashed: principal point, dotted: distortion)")
+    fig.suptitle(title)
+    _save(fig, path)
+
+
+def plot_reproj(path: Path, study: ReprojectionStudy, title: str) -> None:
+    """Reprojection error (output px) against APPD (% of the diagonal), a panel per scenario, coloured by fx's t."""
+    names = list(study.reproj_px)
+    fig = _figure(5.2 * len(names) + 0.8, 4.4)
+    axes = np.atleast_1d(fig.subplots(1, len(names), squeeze=False)[0])
+    focal = 100 * study.fractions[:, PARAMS.index("fx")]
+    for ax, name in zip(axes, names):
+        error = study.reproj_px[name]
+        dots = ax.scatter(study.appd_pct, error, c=focal, s=9, cmap="viridis", alpha=0.8)
+        ax.set_title(f"{_SCENARIO_TITLES[name]}\nSpearman ρ = {spearman(study.appd_pct, error):.3f}, "
+                     f"n = {np.isfinite(error).sum()}", fontsize="medium")
+        ax.set_xlabel("APPD (% of image diagonal)")
+        ax.set_ylabel(f"mean reprojection error (px of the {study.size[0]}x{study.size[1]} output)")
+        ax.grid(True, alpha=0.3)
+    fig.colorbar(dots, ax=list(axes), label="fx change (%)")
+    fig.suptitle(title)
+    _save(fig, path)
+
+
+def plot_drift(path: Path, tables: Mapping[str, tuple[Sequence[str], np.ndarray, float]], title: str) -> None:
+    """A heat map per camera of APPD between calibrations: (labels, matrix in raw px, raw diagonal in px)."""
+    fig = _figure(5.0 * len(tables) + 0.8, 4.6)
+    axes = fig.subplots(1, len(tables), squeeze=False)[0]
+    top = max(float(m.max()) for _, m, _ in tables.values()) or 1.0
+    for ax, (camera, (labels, matrix, diagonal)) in zip(axes, tables.items()):
+        image = ax.imshow(matrix, cmap="magma_r", vmin=0.0, vmax=top)
+        for (i, j), value in np.ndenumerate(matrix):
+            ax.text(j, i, f"{value:.2f} px\n{value * 100 / diagonal:.3f} %", ha="center", va="center",
+                    fontsize="x-small", color="white" if value > 0.6 * top else "black")
+        ax.set_xticks(range(len(labels)), labels, rotation=30, ha="right")
+        ax.set_yticks(range(len(labels)), labels)
+        ax.set_title(f"camera {camera}")
+        ax.set_xlabel("calibration")
+        ax.set_ylabel("calibration")
+    fig.colorbar(image, ax=list(axes), label="APPD (raw px)")
+    fig.suptitle(title)
+    _save(fig, path)

@@ -16,13 +16,10 @@ from appdgen.calibration import PARAMS, Calibration
 from appdgen.crop import Crop, valid_region
 from appdgen.distortion import distort_to_pixels, undistort_pixels
 from appdgen.errors import AppdgenError
+from appdgen.sampling import PAPER_RANGES
 from appdgen.maps import Rectification, rectify
 
 #: The paper's perturbation ranges, as fractions of the reference value: Θm = Θ* × (1 + t), t uniform in the range.
-PAPER_RANGES: dict[str, tuple[float, float]] = {
-    "fx": (-0.05, 0.20), "fy": (-0.05, 0.20), "cx": (-0.05, 0.05), "cy": (-0.05, 0.05),
-    "k1": (-0.15, 0.15), "k2": (-0.15, 0.15), "p1": (-0.15, 0.15), "p2": (-0.15, 0.15), "k3": (-0.15, 0.15),
-}
 #: The two reprojection scenarios of the paper's figure: (a) synthetic and (b) physical.
 SCENARIOS: tuple[str, ...] = ("synthetic", "physical")
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from appdgen.calibration import Calibration
+from appdgen.sampling import PAPER_RANGES  # noqa: F401  (re-exported to the tests)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -18,11 +19,6 @@ KITTI_2011_09_26 = {
     "03": Calibration(1392, 512, 903.7596, 901.9653, 695.7519, 224.2509, -0.3639558, 0.1788651, 0.0006029694, -0.0003922424, -0.0538246),
 }
 
-#: The paper's perturbation ranges, as fractions of the reference value.
-PAPER_RANGES = {
-    "fx": (-0.05, 0.20), "fy": (-0.05, 0.20), "cx": (-0.05, 0.05), "cy": (-0.05, 0.05),
-    "k1": (-0.15, 0.15), "k2": (-0.15, 0.15), "p1": (-0.15, 0.15), "p2": (-0.15, 0.15), "k3": (-0.15, 0.15),
-}
 
 
 def shared_data() -> Path | None:

@@ -234,5 +234,47 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
                f"{t['mb_written']:.1f} MB written{skipped_note} -> {out_dir}")
 
 
+@main.command("inspect")
+@click.argument("out_dir", metavar="OUT", type=click.Path(file_okay=False))
+@click.option("--sheet", default=None, type=click.Path(dir_okay=False),
+              help="Also write a contact sheet PNG of samples spread over the APPD range.")
+@click.option("--count", default=24, show_default=True, help="Samples on the contact sheet.")
+@fail_cleanly
+def inspect_command(out_dir, sheet, count):
+    """Summarise a finished build: counts, splits, APPD histogram, sampler speed, size on disk."""
+    from appdgen.images import write_image
+    from appdgen.inspection import contact_sheet, summary
+
+    click.echo(summary(Path(out_dir)))
+    if sheet is not None:
+        image = contact_sheet(Path(out_dir), count)
+        write_image(Path(sheet), image)
+        click.echo(f"wrote {sheet} ({image.shape[1]}x{image.shape[0]})")
+
+
+VERIFY_LINES = 20  # problems printed; the rest are counted
+
+
+@main.command("verify")
+@click.argument("out_dir", metavar="OUT", type=click.Path(file_okay=False))
+@fail_cleanly
+def verify_command(out_dir):
+    """Re-read every shard and check it against labels.parquet and build.json (exit 1 on any mismatch)."""
+    from appdgen.inspection import verify
+
+    report = verify(Path(out_dir))
+    checked = f"{report.samples} samples in {report.shards} shards"
+    if report.ok:
+        click.echo(f"verified {checked}: OK")
+        return
+    for line in report.problems[:VERIFY_LINES]:
+        click.echo(line)
+    if report.total > VERIFY_LINES:
+        click.echo(f"… and {report.total - VERIFY_LINES} more")
+    noun = "problem" if report.total == 1 else "problems"
+    click.echo(f"verify failed: {report.total} {noun} in {checked} ({out_dir})", err=True)
+    sys.exit(1)
+
+
 if __name__ == "__main__":
     main()

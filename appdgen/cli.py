@@ -276,5 +276,38 @@ def verify_command(out_dir):
     sys.exit(1)
 
 
+@main.command()
+@click.argument("kitti_root", required=False, type=click.Path(file_okay=False))
+@click.option("--camera", default="02", show_default=True, help="KITTI camera: lists image_<camera>/data/*.png.")
+@click.option("--split-file", default=None, type=click.Path(dir_okay=False),
+              help="'DRIVE SPLIT' / 'DAY SPLIT' lines, e.g. manifests/kitti_raw_split.txt [default: split = day].")
+@click.option("--nuscenes", "nuscenes_root", default=None, type=click.Path(file_okay=False),
+              help="List a nuScenes tree instead: ROOT/samples/<channel>/*.jpg.")
+@click.option("--channel", default="CAM_FRONT", show_default=True, help="nuScenes camera channel.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="List file; for KITTI one list per day: kitti_02.txt -> kitti_02_<day>.txt.")
+@fail_cleanly
+def manifest(kitti_root, camera, split_file, nuscenes_root, channel, output):
+    """Write image lists ('PATH SPLIT' lines) for build --images from a local KITTI raw or nuScenes tree."""
+    from appdgen.manifest import kitti_manifests, nuscenes_manifest
+
+    if (kitti_root is None) == (nuscenes_root is None):
+        raise AppdgenError("give a KITTI_ROOT or --nuscenes ROOT (one of them)")
+    if nuscenes_root is not None:
+        count = nuscenes_manifest(Path(nuscenes_root), channel, Path(output))
+        click.echo(f"{count} images -> {output} (split 'all'; build with the calibrated_sensor record of the car "
+                   f"that recorded them)")
+        return
+    for day in kitti_manifests(Path(kitti_root), camera, Path(output), Path(split_file) if split_file else None):
+        splits = ", ".join(f"{name} {n}" for name, n in day.splits.items())
+        drives = f"{day.drives} drive" + ("s" if day.drives != 1 else "")
+        click.echo(f"{day.day}: {drives}, {day.images} images ({splits}) -> {day.path}")
+        if not day.calibration.is_file():
+            click.echo(f"  warning: {day.calibration} is missing (sizes not checked); get the day's calibration "
+                       f"before building", err=True)
+        click.echo(f"  appdgen build --calib {day.calibration} --camera {day.camera} --images {day.path} "
+                   f"--out OUT_{day.day}")
+
+
 if __name__ == "__main__":
     main()

@@ -516,5 +516,80 @@ def echo_drift(camera: str, table: dict, labels: Sequence[str]) -> None:
     if table["note"]:
         note(f"camera {camera}: {table['note']}")
 
+@main.command("inspect")
+@click.argument("out_dir", metavar="OUT", type=click.Path(file_okay=False))
+@click.option("--sheet", default=None, type=click.Path(dir_okay=False),
+              help="Also write a contact sheet PNG of samples spread over the APPD range.")
+@click.option("--count", default=24, show_default=True, help="Samples on the contact sheet.")
+@fail_cleanly
+def inspect_command(out_dir, sheet, count):
+    """Summarise a finished build: counts, splits, APPD histogram, sampler speed, size on disk."""
+    from appdgen.images import write_image
+    from appdgen.inspection import contact_sheet, summary
+
+    click.echo(summary(Path(out_dir)))
+    if sheet is not None:
+        image = contact_sheet(Path(out_dir), count)
+        write_image(Path(sheet), image)
+        click.echo(f"wrote {sheet} ({image.shape[1]}x{image.shape[0]})")
+
+
+VERIFY_LINES = 20  # problems printed; the rest are counted
+
+
+@main.command("verify")
+@click.argument("out_dir", metavar="OUT", type=click.Path(file_okay=False))
+@fail_cleanly
+def verify_command(out_dir):
+    """Re-read every shard and check it against labels.parquet and build.json (exit 1 on any mismatch)."""
+    from appdgen.inspection import verify
+
+    report = verify(Path(out_dir))
+    checked = f"{report.samples} samples in {report.shards} shards"
+    if report.ok:
+        click.echo(f"verified {checked}: OK")
+        return
+    for line in report.problems[:VERIFY_LINES]:
+        click.echo(line)
+    if report.total > VERIFY_LINES:
+        click.echo(f"… and {report.total - VERIFY_LINES} more")
+    noun = "problem" if report.total == 1 else "problems"
+    click.echo(f"verify failed: {report.total} {noun} in {checked} ({out_dir})", err=True)
+    sys.exit(1)
+
+
+@main.command()
+@click.argument("kitti_root", required=False, type=click.Path(file_okay=False))
+@click.option("--camera", default="02", show_default=True, help="KITTI camera: lists image_<camera>/data/*.png.")
+@click.option("--split-file", default=None, type=click.Path(dir_okay=False),
+              help="'DRIVE SPLIT' / 'DAY SPLIT' lines, e.g. manifests/kitti_raw_split.txt [default: split = day].")
+@click.option("--nuscenes", "nuscenes_root", default=None, type=click.Path(file_okay=False),
+              help="List a nuScenes tree instead: ROOT/samples/<channel>/*.jpg.")
+@click.option("--channel", default="CAM_FRONT", show_default=True, help="nuScenes camera channel.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="List file; for KITTI one list per day: kitti_02.txt -> kitti_02_<day>.txt.")
+@fail_cleanly
+def manifest(kitti_root, camera, split_file, nuscenes_root, channel, output):
+    """Write image lists ('PATH SPLIT' lines) for build --images from a local KITTI raw or nuScenes tree."""
+    from appdgen.manifest import kitti_manifests, nuscenes_manifest
+
+    if (kitti_root is None) == (nuscenes_root is None):
+        raise AppdgenError("give a KITTI_ROOT or --nuscenes ROOT (one of them)")
+    if nuscenes_root is not None:
+        count = nuscenes_manifest(Path(nuscenes_root), channel, Path(output))
+        click.echo(f"{count} images -> {output} (split 'all'; build with the calibrated_sensor record of the car "
+                   f"that recorded them)")
+        return
+    for day in kitti_manifests(Path(kitti_root), camera, Path(output), Path(split_file) if split_file else None):
+        splits = ", ".join(f"{name} {n}" for name, n in day.splits.items())
+        drives = f"{day.drives} drive" + ("s" if day.drives != 1 else "")
+        click.echo(f"{day.day}: {drives}, {day.images} images ({splits}) -> {day.path}")
+        if not day.calibration.is_file():
+            click.echo(f"  warning: {day.calibration} is missing (sizes not checked); get the day's calibration "
+                       f"before building", err=True)
+        click.echo(f"  appdgen build --calib {day.calibration} --camera {day.camera} --images {day.path} "
+                   f"--out OUT_{day.day}")
+
+
 if __name__ == "__main__":
     main()

@@ -1,6 +1,7 @@
 """Reading and writing image files with errors that name the file."""
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import cv2
@@ -23,8 +24,6 @@ def read_image(path: Path) -> np.ndarray:
 def encode_image(image: np.ndarray, ext: str) -> bytes:
     """Encoded bytes for '.png' (compression level 1), '.jpg' (quality 95) or '.npy'."""
     if ext == ".npy":
-        import io
-
         buffer = io.BytesIO()
         np.save(buffer, image, allow_pickle=False)
         return buffer.getvalue()
@@ -35,6 +34,19 @@ def encode_image(image: np.ndarray, ext: str) -> bytes:
     if not ok:
         raise AppdgenError(f"could not encode image as {ext}")
     return data.tobytes()
+
+
+def decode_image(data: bytes, ext: str, where: str) -> np.ndarray:
+    """An image array from encoded '.png'/'.jpg' bytes (8-bit BGR) or '.npy' bytes; AppdgenError naming `where`."""
+    if ext == ".npy":
+        try:
+            return np.load(io.BytesIO(data), allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise AppdgenError(f"{where}: not a readable .npy array ({exc})") from None
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
+    if image is None:
+        raise AppdgenError(f"{where}: not a readable image")
+    return image
 
 
 def write_image(path: Path, image: np.ndarray) -> None:

@@ -13,8 +13,10 @@ from appdgen.errors import AppdgenError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 SPLIT_BY = ("none", "parent", "day", "drive")
-_DAY = re.compile(r"(\d{4}_\d{2}_\d{2})")
-_DRIVE = re.compile(r"(\d{4}_\d{2}_\d{2}_drive_\d{4})")
+KITTI_DAY = r"\d{4}_\d{2}_\d{2}"  # a KITTI raw recording day, e.g. 2011_09_26
+KITTI_DRIVE = KITTI_DAY + r"_drive_\d{4}"  # a drive of that day, e.g. 2011_09_26_drive_0001
+_DAY = re.compile(f"({KITTI_DAY})")
+_DRIVE = re.compile(f"({KITTI_DRIVE})")
 _KITTI_CAMERA = re.compile(r"image_(\d{2})")
 
 

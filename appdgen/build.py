@@ -24,8 +24,8 @@ from appdgen import __version__
 from appdgen.appd import appd_px, px_to_pct
 from appdgen.atomic import atomic_write
 from appdgen.calibration import Calibration
-from appdgen.crop import check_output_size
-from appdgen.distribute import run_unordered
+from appdgen.crop import check_output_size, valid_region
+from appdgen.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.images import encode_image, read_image
 from appdgen.maps import rectify
@@ -66,7 +66,20 @@ class BuildConfig:
             raise AppdgenError(f"--format {self.image_format!r}: expected one of {', '.join(FORMATS)}")
         if not self.images:
             raise AppdgenError("no raw images given")
-        object.__setattr__(self, "size", check_output_size(self.reference, self.size))
+        try:
+            object.__setattr__(self, "size", check_output_size(self.reference, self.size))
+        except AppdgenError as exc:
+            raise AppdgenError(f"--size: {exc}") from None
+        self._check_reference()
+        # Refuses bad --appd-max, --zero-fraction and --ranges now, before --out is touched, not in a worker.
+        Sampler(self.reference, self.ranges, self.appd_max, self.zero_fraction, self.size)
+
+    def _check_reference(self) -> None:
+        """Refuse a reference without a valid crop (e.g. a folding lens), naming its file."""
+        try:
+            valid_region(self.reference)
+        except AppdgenError as exc:
+            raise AppdgenError(f"{self.calib_path}: camera {self.camera}: {exc}") from None
 
     @property
     def shards(self) -> int:
@@ -190,6 +203,7 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
           skipped: list[str] | None = None) -> dict:
     """Run a build into `out` and return build.json's content."""
     start = time.perf_counter()
+    check_parallel(jobs, backend)
     prepare_out(out, config, resume, overwrite)
     todo = pending_shards(out, config)
     bar = Progress(config.samples, enabled=progress)

@@ -215,6 +215,8 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
         raise AppdgenError("give --samples or --per-image, not both")
     if resume and overwrite:
         raise AppdgenError("give --resume or --overwrite, not both")
+    if per_image is not None and per_image < 1:
+        raise AppdgenError(f"--per-image {per_image}: must be at least 1")
     images = list_images(images_spec, split_by)
     camera = choose_camera(calib_path, camera, images)
     reference = load_calibration(calib_path, camera)

@@ -176,9 +176,9 @@ def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -
     if existing and not overwrite:
         raise AppdgenError(f"--out {out}: folder is not empty (use --resume to finish an interrupted build, "
                            f"--overwrite to replace it)")
-    if existing:
-        _remove_outputs(out)
     try:
+        if existing:
+            _remove_outputs(out)
         (out / PARTS_DIR).mkdir(parents=True, exist_ok=True)
         _remove_temporaries(out)
         atomic_write(plan_path, json.dumps(config.plan(), indent=1).encode())
@@ -241,12 +241,20 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
     try:
         for stats in run_unordered(build_shard, [(config, str(out), k) for k in todo], jobs, backend, scheduler):
             bar.advance(stats["samples"], stats["file"])
+        return _finish(config, out, todo, start, command, skipped or [])
     except OSError as exc:
         raise AppdgenError(f"--out {out}: write failed ({exc.strerror or exc}); fix it and rerun with --resume") from None
+    except AppdgenError as exc:
+        raise AppdgenError(f"{exc} (finished shards are kept: fix this and rerun with --resume)") from None
+
+
+def _finish(config: BuildConfig, out: Path, built: list[int], start: float, command: list[str] | None,
+            skipped: list[str]) -> dict:
+    """Write labels.parquet and build.json from the parts, then drop the parts; returns build.json's content."""
     parts = out / PARTS_DIR
     shards = [json.loads((parts / f"{shard_name(k)}.stats.json").read_text()) for k in range(config.shards)]
     write_index(out / "labels.parquet", [parts / f"{shard_name(k)}.parquet" for k in range(config.shards)])
-    summary = _summary(config, shards, todo, time.perf_counter() - start, command, skipped or [])
+    summary = _summary(config, shards, built, time.perf_counter() - start, command, skipped)
     atomic_write(out / "build.json", json.dumps(summary, indent=2).encode())
     # One rename ends the build (a kill during a plain rmtree could leave a plan-less, unresumable .parts).
     trash = out / f".{PARTS_DIR}.{secrets.token_hex(4)}.tmp"

@@ -5,7 +5,7 @@ import functools
 import json
 import sys
 from pathlib import Path
-from typing import Callable
+from typing import IO, Any, Callable
 
 import click
 
@@ -22,10 +22,32 @@ def fail_cleanly(command: Callable) -> Callable:
         try:
             return command(*args, **kwargs)
         except AppdgenError as error:
-            click.echo(f"appdgen: error: {error}", err=True)
+            click.echo(f"appdgen: error: {' '.join(str(error).splitlines())}", err=True)  # a path may hold a newline
             sys.exit(2)
 
     return wrapper
+
+
+class OneLineUsageError(click.ClickException):
+    """A bad or missing option, shown as one line like AppdgenError (exit status 2, as click's own)."""
+
+    exit_code = 2
+
+    def show(self, file: IO[Any] | None = None) -> None:
+        """Print `appdgen: error: …` on stderr."""
+        click.echo(f"appdgen: error: {' '.join(self.format_message().splitlines())}", err=True)
+
+
+class AppdgenGroup(click.Group):
+    """The command group: a subcommand's usage errors become one line instead of click's usage block."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        """Run the subcommand, turning click.UsageError into OneLineUsageError."""
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as exc:
+            where = exc.ctx.command_path if exc.ctx else "appdgen"
+            raise OneLineUsageError(f"{exc.format_message()} (see '{where} --help')") from None
 
 
 def parse_size(text: str | None) -> tuple[int, int] | None:
@@ -80,7 +102,7 @@ size_option = click.option("--size", default=None, metavar="WxH",
                            help="Output size in pixels (default: the raw size; must keep the raw aspect).")
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=AppdgenGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="appdgen")
 def main() -> None:
     """Self-labelled data for learning camera miscalibration detection (APPD labels)."""
@@ -169,7 +191,10 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
     fitting = [c for c in cameras if load_calibration(calib_path, c).size == size]
     if len(fitting) == 1:
         return fitting[0]
-    raise AppdgenError(f"{calib_path}: cameras {', '.join(cameras)} fit the images; choose one with --camera")
+    if not fitting:
+        raise AppdgenError(f"{calib_path}: no camera ({', '.join(cameras)}) is {size[0]}x{size[1]} like "
+                           f"{images[0].path}")
+    raise AppdgenError(f"{calib_path}: cameras {', '.join(fitting)} fit the images; choose one with --camera")
 
 
 @main.command()

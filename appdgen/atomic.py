@@ -2,11 +2,21 @@
 from __future__ import annotations
 
 import os
+import re
 import secrets
 from contextlib import suppress
 from pathlib import Path
 
 from appdgen.errors import AppdgenError
+
+# `.<target name>.<8 hex digits>.tmp`: hidden, and never mistaken for a finished file by name patterns.
+_TEMPORARY = re.compile(r"\.(?P<target>.+)\.[0-9a-f]{8}\.tmp")
+
+
+def temporary_target(name: str) -> str | None:
+    """The target's file name when `name` is one of atomic_write's temporaries, else None."""
+    match = _TEMPORARY.fullmatch(name)
+    return match.group("target") if match else None
 
 
 def atomic_write(target: Path, data: bytes) -> None:

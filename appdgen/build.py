@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import platform
+import secrets
 import shutil
 import sys
 import time
@@ -22,10 +23,10 @@ import numpy as np
 
 from appdgen import __version__
 from appdgen.appd import appd_px, px_to_pct
-from appdgen.atomic import atomic_write
+from appdgen.atomic import atomic_write, temporary_target
 from appdgen.calibration import Calibration
-from appdgen.crop import check_output_size
-from appdgen.distribute import run_unordered
+from appdgen.crop import check_output_size, valid_region
+from appdgen.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.images import encode_image, read_image
 from appdgen.maps import rectify
@@ -66,7 +67,20 @@ class BuildConfig:
             raise AppdgenError(f"--format {self.image_format!r}: expected one of {', '.join(FORMATS)}")
         if not self.images:
             raise AppdgenError("no raw images given")
-        object.__setattr__(self, "size", check_output_size(self.reference, self.size))
+        try:
+            object.__setattr__(self, "size", check_output_size(self.reference, self.size))
+        except AppdgenError as exc:
+            raise AppdgenError(f"--size: {exc}") from None
+        self._check_reference()
+        # Refuses bad --appd-max, --zero-fraction and --ranges now, before --out is touched, not in a worker.
+        Sampler(self.reference, self.ranges, self.appd_max, self.zero_fraction, self.size)
+
+    def _check_reference(self) -> None:
+        """Refuse a reference without a valid crop (e.g. a folding lens), naming its file."""
+        try:
+            valid_region(self.reference)
+        except AppdgenError as exc:
+            raise AppdgenError(f"{self.calib_path}: camera {self.camera}: {exc}") from None
 
     @property
     def shards(self) -> int:
@@ -148,7 +162,7 @@ def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -
     if out.exists() and not out.is_dir():
         raise AppdgenError(f"--out {out}: exists and is not a folder")
     plan_path = out / PARTS_DIR / "plan.json"
-    existing = sorted(out.iterdir()) if out.is_dir() else []
+    existing = [] if _unplanned_leftovers(out) else sorted(out.iterdir())
     if existing and resume:
         if not plan_path.is_file():
             if (out / "labels.parquet").is_file():
@@ -157,22 +171,50 @@ def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -
         if json.loads(plan_path.read_text()) != config.plan():
             raise AppdgenError(f"--out {out}: the interrupted build used other inputs or options; "
                                f"rerun it with the same ones, or use --overwrite")
+        _remove_temporaries(out)
         return
     if existing and not overwrite:
         raise AppdgenError(f"--out {out}: folder is not empty (use --resume to finish an interrupted build, "
                            f"--overwrite to replace it)")
-    if existing:
-        _remove_outputs(out)
     try:
+        if existing:
+            _remove_outputs(out)
         (out / PARTS_DIR).mkdir(parents=True, exist_ok=True)
+        _remove_temporaries(out)
         atomic_write(plan_path, json.dumps(config.plan(), indent=1).encode())
     except OSError as exc:
         raise AppdgenError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
 
 
+def _is_ours(name: str) -> bool:
+    """Whether a name in --out is one a build writes (shards, index, build.json, parts) or a temporary of one."""
+    name = temporary_target(name) or name
+    return name.startswith("shard-") or name in OUTPUT_NAMES
+
+
+def _unplanned_leftovers(out: Path) -> bool:
+    """Whether --out holds at most what a build killed before writing its plan leaves (.parts, temporaries)."""
+    if not out.is_dir():
+        return True
+    parts = out / PARTS_DIR
+    if (parts / "plan.json").exists():
+        return False
+    outside = all(p.name == PARTS_DIR or (temporary_target(p.name) and _is_ours(p.name)) for p in out.iterdir())
+    return outside and all(temporary_target(p.name) for p in (parts.iterdir() if parts.is_dir() else ()))
+
+
+def _remove_temporaries(out: Path) -> None:
+    """Delete the temporaries a killed build left in --out and .parts (their files get written anew)."""
+    parts = out / PARTS_DIR
+    ours = [p for p in out.iterdir() if temporary_target(p.name) and _is_ours(p.name)]
+    ours += [p for p in (parts.iterdir() if parts.is_dir() else ()) if temporary_target(p.name)]
+    for path in ours:
+        shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+
+
 def _remove_outputs(out: Path) -> None:
     """Remove a previous build's files (shards, index, build.json, parts) and nothing else."""
-    foreign = [p.name for p in out.iterdir() if not (p.name.startswith("shard-") or p.name in OUTPUT_NAMES)]
+    foreign = [p.name for p in out.iterdir() if not _is_ours(p.name)]
     if foreign:
         raise AppdgenError(f"--out {out}: --overwrite refuses a folder holding other files too ({foreign[0]}, …)")
     for path in out.iterdir():
@@ -180,9 +222,10 @@ def _remove_outputs(out: Path) -> None:
 
 
 def pending_shards(out: Path, config: BuildConfig) -> list[int]:
-    """Shards whose fragment (written last) is missing."""
+    """Shards whose fragment (written last) or tar is missing."""
     parts = out / PARTS_DIR
-    return [k for k in range(config.shards) if not (parts / f"{shard_name(k)}.parquet").is_file()]
+    return [k for k in range(config.shards)
+            if not ((parts / f"{shard_name(k)}.parquet").is_file() and (out / shard_name(k)).is_file())]
 
 
 def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", scheduler: str | None = None,
@@ -190,6 +233,7 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
           skipped: list[str] | None = None) -> dict:
     """Run a build into `out` and return build.json's content."""
     start = time.perf_counter()
+    check_parallel(jobs, backend)
     prepare_out(out, config, resume, overwrite)
     todo = pending_shards(out, config)
     bar = Progress(config.samples, enabled=progress)
@@ -197,14 +241,25 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
     try:
         for stats in run_unordered(build_shard, [(config, str(out), k) for k in todo], jobs, backend, scheduler):
             bar.advance(stats["samples"], stats["file"])
+        return _finish(config, out, todo, start, command, skipped or [])
     except OSError as exc:
         raise AppdgenError(f"--out {out}: write failed ({exc.strerror or exc}); fix it and rerun with --resume") from None
+    except AppdgenError as exc:
+        raise AppdgenError(f"{exc} (finished shards are kept: fix this and rerun with --resume)") from None
+
+
+def _finish(config: BuildConfig, out: Path, built: list[int], start: float, command: list[str] | None,
+            skipped: list[str]) -> dict:
+    """Write labels.parquet and build.json from the parts, then drop the parts; returns build.json's content."""
     parts = out / PARTS_DIR
     shards = [json.loads((parts / f"{shard_name(k)}.stats.json").read_text()) for k in range(config.shards)]
     write_index(out / "labels.parquet", [parts / f"{shard_name(k)}.parquet" for k in range(config.shards)])
-    summary = _summary(config, shards, todo, time.perf_counter() - start, command, skipped or [])
+    summary = _summary(config, shards, built, time.perf_counter() - start, command, skipped)
     atomic_write(out / "build.json", json.dumps(summary, indent=2).encode())
-    shutil.rmtree(parts)
+    # One rename ends the build (a kill during a plain rmtree could leave a plan-less, unresumable .parts).
+    trash = out / f".{PARTS_DIR}.{secrets.token_hex(4)}.tmp"
+    parts.rename(trash)
+    shutil.rmtree(trash)
     return summary
 
 

@@ -8,7 +8,7 @@ import json
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Callable
+from typing import IO, Any, Callable
 
 import click
 import numpy as np
@@ -26,10 +26,32 @@ def fail_cleanly(command: Callable) -> Callable:
         try:
             return command(*args, **kwargs)
         except AppdgenError as error:
-            click.echo(f"appdgen: error: {error}", err=True)
+            click.echo(f"appdgen: error: {' '.join(str(error).splitlines())}", err=True)  # a path may hold a newline
             sys.exit(2)
 
     return wrapper
+
+
+class OneLineUsageError(click.ClickException):
+    """A bad or missing option, shown as one line like AppdgenError (exit status 2, as click's own)."""
+
+    exit_code = 2
+
+    def show(self, file: IO[Any] | None = None) -> None:
+        """Print `appdgen: error: …` on stderr."""
+        click.echo(f"appdgen: error: {' '.join(self.format_message().splitlines())}", err=True)
+
+
+class AppdgenGroup(click.Group):
+    """The command group: a subcommand's usage errors become one line instead of click's usage block."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        """Run the subcommand, turning click.UsageError into OneLineUsageError."""
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as exc:
+            where = exc.ctx.command_path if exc.ctx else "appdgen"
+            raise OneLineUsageError(f"{exc.format_message()} (see '{where} --help')") from None
 
 
 def parse_size(text: str | None) -> tuple[int, int] | None:
@@ -89,7 +111,7 @@ plot_option = click.option("--plot", "plot_path", default=None, type=click.Path(
                            help="Also draw a figure to this PNG file (needs the 'plot' extra: matplotlib).")
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=AppdgenGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="appdgen")
 def main() -> None:
     """Self-labelled data for learning camera miscalibration detection (APPD labels)."""
@@ -178,7 +200,10 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
     fitting = [c for c in cameras if load_calibration(calib_path, c).size == size]
     if len(fitting) == 1:
         return fitting[0]
-    raise AppdgenError(f"{calib_path}: cameras {', '.join(cameras)} fit the images; choose one with --camera")
+    if not fitting:
+        raise AppdgenError(f"{calib_path}: no camera ({', '.join(cameras)}) is {size[0]}x{size[1]} like "
+                           f"{images[0].path}")
+    raise AppdgenError(f"{calib_path}: cameras {', '.join(fitting)} fit the images; choose one with --camera")
 
 
 # --- analyses (issue #7): sweep, reproj, drift ---------------------------------------------------------------------
@@ -265,6 +290,8 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
         raise AppdgenError("give --samples or --per-image, not both")
     if resume and overwrite:
         raise AppdgenError("give --resume or --overwrite, not both")
+    if per_image is not None and per_image < 1:
+        raise AppdgenError(f"--per-image {per_image}: must be at least 1")
     images = list_images(images_spec, split_by)
     camera = choose_camera(calib_path, camera, images)
     reference = load_calibration(calib_path, camera)

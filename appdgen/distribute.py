@@ -17,14 +17,19 @@ def default_jobs() -> int:
         return os.cpu_count() or 1
 
 
-def run_unordered(fn: Callable[[Any], Any], items: Iterable[Any], jobs: int, backend: str = "loky",
-                  scheduler: str | None = None) -> Iterator[Any]:
-    """fn(item) for every item, yielded as they finish; jobs == 1 runs in this process."""
-    items = list(items)
+def check_parallel(jobs: int, backend: str) -> None:
+    """Refuse a backend or job count run_unordered cannot use (callers check before writing anything)."""
     if backend not in BACKENDS:
         raise AppdgenError(f"--backend {backend!r}: expected one of {', '.join(BACKENDS)}")
     if jobs < 1:
         raise AppdgenError(f"--jobs {jobs}: must be at least 1")
+
+
+def run_unordered(fn: Callable[[Any], Any], items: Iterable[Any], jobs: int, backend: str = "loky",
+                  scheduler: str | None = None) -> Iterator[Any]:
+    """fn(item) for every item, yielded as they finish; jobs == 1 runs in this process."""
+    items = list(items)
+    check_parallel(jobs, backend)
     if backend == "dask":
         yield from _dask(fn, items, scheduler)
     elif jobs == 1 or len(items) <= 1:

@@ -18,6 +18,7 @@ KITTI_DRIVE = KITTI_DAY + r"_drive_\d{4}"  # a drive of that day, e.g. 2011_09_2
 _DAY = re.compile(f"({KITTI_DAY})")
 _DRIVE = re.compile(f"({KITTI_DRIVE})")
 _KITTI_CAMERA = re.compile(r"image_(\d{2})")
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the empty IEND chunk every complete PNG ends with
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,8 @@ def _read_list(path: Path, split_by: str) -> list[RawImage]:
         fields = line.split("#", 1)[0].split()
         if not fields:
             continue
+        if "\0" in line:  # no file name holds one; the OS would refuse it later with a ValueError
+            raise AppdgenError(f"{path}:{number}: NUL byte in the line")
         if len(fields) > 2:
             raise AppdgenError(f"{path}:{number}: expected 'PATH [SPLIT]', got {line.strip()!r}")
         image = Path(fields[0]) if Path(fields[0]).is_absolute() else path.parent / fields[0]
@@ -105,6 +108,10 @@ def image_size(path: Path) -> tuple[int, int]:
         with open(path, "rb") as handle:
             head = handle.read(32)
             if head.startswith(b"\x89PNG\r\n\x1a\n") and head[12:16] == b"IHDR":
+                # A cut-off copy has a good header but fails to decode mid-build: refuse it before --out is touched.
+                handle.seek(-len(_PNG_END), 2)
+                if handle.read() != _PNG_END:
+                    raise AppdgenError(f"{path}: truncated PNG (no IEND chunk at its end)")
                 return struct.unpack(">II", head[16:24])
             if head.startswith(b"\xff\xd8"):
                 size = _jpeg_size(handle)

@@ -1,4 +1,4 @@
-"""Shared fixtures: published KITTI calibrations (embedded) and the optional ../shared/data folder."""
+"""Shared fixtures: published KITTI calibrations (embedded), ../shared/data when present, and small builds."""
 from __future__ import annotations
 
 import os
@@ -8,6 +8,7 @@ import pytest
 
 from appdgen.calibration import Calibration
 from appdgen.sampling import PAPER_RANGES  # noqa: F401  (re-exported to the tests)
+from helpers import Setup, kitti_text, raw_image, run_cli, run_with_full_disk, scaled, write_png
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,3 +41,48 @@ def shared() -> Path:
 def kitti02() -> Calibration:
     """KITTI 2011_09_26 camera 02, the paper's reference camera."""
     return KITTI_2011_09_26["02"]
+
+
+@pytest.fixture(scope="session")
+def small_camera() -> Calibration:
+    """KITTI camera 02 at 1/8 size (174x64): K scaled, distortion kept, so builds are tiny and fast."""
+    return scaled(KITTI_2011_09_26["02"], 8)
+
+
+@pytest.fixture(scope="session")
+def setup(tmp_path_factory: pytest.TempPathFactory, small_camera: Calibration) -> Setup:
+    """The small camera's KITTI-format calibration file and three raw images, with the standard build options."""
+    root = tmp_path_factory.mktemp("inputs")
+    calib = root / "calib_cam_to_cam.txt"
+    calib.write_text(kitti_text({"02": small_camera}))
+    for i in range(3):
+        write_png(root / "images" / f"{i:010d}.png", raw_image(small_camera.size, i))
+    return Setup(calib, root / "images")
+
+
+def _build(tmp_path_factory: pytest.TempPathFactory, setup: Setup, jobs: int) -> Path:
+    """The standard build, uninterrupted, run from this process."""
+    out = tmp_path_factory.mktemp(f"jobs{jobs}") / "out"
+    result = run_cli(setup.args(out, jobs=jobs))
+    assert result.exit_code == 0, result.output
+    return out
+
+
+@pytest.fixture(scope="session")
+def reference_build(tmp_path_factory: pytest.TempPathFactory, setup: Setup) -> Path:
+    """The standard build with --jobs 1 (in this process): what every other way must reproduce."""
+    return _build(tmp_path_factory, setup, 1)
+
+
+@pytest.fixture(scope="session")
+def loky_build(tmp_path_factory: pytest.TempPathFactory, setup: Setup) -> Path:
+    """The standard build with --jobs 2 (two loky worker processes)."""
+    return _build(tmp_path_factory, setup, 2)
+
+
+@pytest.fixture(scope="session")
+def interrupted_build(setup: Setup, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The standard build stopped with shards 0 and 1 done: the disk 'fills up' at the 8th write (shard 2's tar)."""
+    out = tmp_path_factory.mktemp("interrupted") / "out"
+    assert run_with_full_disk(setup.args(out), 8).exit_code == 2
+    return out

@@ -19,7 +19,6 @@ import numpy as np
 
 from appdgen.calibration import Calibration
 from appdgen.distortion import (
-    distort_normalized,
     distort_to_pixels,
     distortion_jacobian,
     radial_fold_radius,

@@ -27,7 +27,8 @@ from appdgen.analysis import (
 )
 from appdgen.appd import appd_px
 from appdgen.calibration import Calibration
-from appdgen.cli import file_labels, main
+from appdgen.cli import main
+from appdgen.cli.analyses import file_labels
 from appdgen.distortion import distort_to_pixels
 from appdgen.errors import AppdgenError
 from appdgen.formats import save

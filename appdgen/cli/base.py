@@ -1,0 +1,167 @@
+"""The `appdgen` command group and what its commands share: one-line errors, option parsers, common options."""
+from __future__ import annotations
+
+import csv
+import functools
+import io
+import sys
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import IO, Any, Callable
+
+import click
+
+from appdgen import __version__
+from appdgen.calibration import PARAMS, Calibration
+from appdgen.errors import AppdgenError
+
+
+def fail_cleanly(command: Callable) -> Callable:
+    """Turn AppdgenError into one line on stderr and exit status 2 (no traceback)."""
+
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except AppdgenError as error:
+            click.echo(f"appdgen: error: {' '.join(str(error).splitlines())}", err=True)  # a path may hold a newline
+            sys.exit(2)
+
+    return wrapper
+
+
+class OneLineUsageError(click.ClickException):
+    """A bad or missing option, shown as one line like AppdgenError (exit status 2, as click's own)."""
+
+    exit_code = 2
+
+    def show(self, file: IO[Any] | None = None) -> None:
+        """Print `appdgen: error: …` on stderr."""
+        click.echo(f"appdgen: error: {' '.join(self.format_message().splitlines())}", err=True)
+
+
+class AppdgenGroup(click.Group):
+    """The command group: a subcommand's usage errors become one line instead of click's usage block."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        """Run the subcommand, turning click.UsageError into OneLineUsageError."""
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as exc:
+            where = exc.ctx.command_path if exc.ctx else "appdgen"
+            raise OneLineUsageError(f"{exc.format_message()} (see '{where} --help')") from None
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """'WxH' → (W, H) in pixels; None passes through."""
+    if text is None:
+        return None
+    try:
+        w, h = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise AppdgenError(f"--size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 348x128") from None
+    if w <= 0 or h <= 0:
+        raise AppdgenError(f"--size {text!r}: width and height must be positive")
+    return w, h
+
+
+def parse_assignments(option: str, items: tuple[str, ...]) -> dict[str, float]:
+    """('fx=0.05', …) → {'fx': 0.05, …}, checking names against the nine parameters."""
+    values: dict[str, float] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or name not in PARAMS:
+            raise AppdgenError(f"{option} {item!r}: expected NAME=VALUE with NAME one of {', '.join(PARAMS)}")
+        try:
+            values[name] = float(text)
+        except ValueError:
+            raise AppdgenError(f"{option} {item!r}: {text!r} is not a number") from None
+    return values
+
+
+def load_calibration(path: str, camera: str | None) -> Calibration:
+    """Read a calibration file of any supported format (errors name the file)."""
+    from appdgen.formats import load
+
+    return load(Path(path), camera=camera)
+
+
+def modified(calib: Calibration, sets: tuple[str, ...], perturbs: tuple[str, ...]) -> Calibration:
+    """Apply --set NAME=VALUE (absolute) then --perturb NAME=FRACTION (× (1 + fraction))."""
+    calib = calib.replace(**parse_assignments("--set", sets))
+    return calib.perturb(**parse_assignments("--perturb", perturbs))
+
+
+calib_option = click.option("--calib", "calib_path", required=True, type=click.Path(dir_okay=False),
+                            help="Calibration file (KITTI, OpenCV YAML/XML, ROS, Kalibr, nuScenes, appdgen JSON).")
+
+
+camera_option = click.option("--camera", default=None, help="Camera in the file, e.g. 02 for KITTI image_02.")
+
+
+set_option = click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
+                          help="Set a parameter to an absolute value (repeatable).")
+
+
+perturb_option = click.option("--perturb", "perturbs", multiple=True, metavar="NAME=FRACTION",
+                              help="Multiply a parameter by (1 + FRACTION), e.g. fx=0.05 (repeatable).")
+
+
+size_option = click.option("--size", default=None, metavar="WxH",
+                           help="Output size in pixels (default: the raw size; must keep the raw aspect).")
+
+
+json_option = click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
+
+
+csv_option = click.option("--csv", "csv_path", default=None, type=click.Path(dir_okay=False),
+                          help="Also write the numbers to this CSV file.")
+
+
+plot_option = click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False),
+                           help="Also draw a figure to this PNG file (needs the 'plot' extra: matplotlib).")
+
+
+@click.group(cls=AppdgenGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="appdgen")
+def main() -> None:
+    """Self-labelled data for learning camera miscalibration detection (APPD labels)."""
+
+
+def format_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A plain-text table: first column left-aligned, the others right-aligned to their widest cell."""
+    cells = [list(header), *map(list, rows)]
+    widths = [max(len(row[i]) for row in cells) for i in range(len(header))]
+    return "\n".join("  ".join(cell.ljust(w) if i == 0 else cell.rjust(w)
+                                for i, (cell, w) in enumerate(zip(row, widths))) for row in cells)
+
+
+def write_csv(path: str, header: Sequence[str], rows: Iterable[Sequence[object]]) -> None:
+    """Write a CSV file atomically: numbers at full precision, NaN as 'nan'."""
+    from appdgen.atomic import write_file
+
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows(rows)
+    write_file(Path(path), buffer.getvalue().encode("utf-8"))
+
+
+def note(text: str) -> None:
+    """A remark about the results, on stderr so that stdout stays the results."""
+    click.echo(f"note: {text}", err=True)
+
+
+def describe_source(path: str, camera: str | None) -> str:
+    """'<folder>/<file>' and the camera, for titles."""
+    where = "/".join(Path(path).resolve().parts[-2:])
+    return f"{where} camera {camera}" if camera else where
+
+
+def start_plot(plot_path: str | None) -> None:
+    """Fail before the computation, not after it, when --plot is asked without matplotlib."""
+    if plot_path:
+        from appdgen.plots import require
+
+        require()

@@ -1,0 +1,211 @@
+"""CLI commands for datasets: synthesize raw frames, build shards, inspect and verify them, write image lists."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from appdgen.cli.base import (
+    fail_cleanly,
+    parse_size,
+    load_calibration,
+    calib_option,
+    camera_option,
+    size_option,
+    main,
+)
+from appdgen.errors import AppdgenError
+
+
+VERIFY_LINES = 20  # problems printed; the rest are counted
+
+
+def choose_camera(calib_path: str, camera: str | None, images) -> str:
+    """--camera, else the KITTI image_0X folder, else the only camera whose size matches the images."""
+    from appdgen.formats import list_cameras
+    from appdgen.sources import image_size, kitti_camera
+
+    if camera is not None:
+        return camera
+    cameras = list_cameras(Path(calib_path))
+    if len(cameras) == 1:
+        return cameras[0]
+    named = kitti_camera(images)
+    if named is not None and named in cameras:
+        return named
+    size = image_size(images[0].path)
+    fitting = [c for c in cameras if load_calibration(calib_path, c).size == size]
+    if len(fitting) == 1:
+        return fitting[0]
+    if not fitting:
+        raise AppdgenError(f"{calib_path}: no camera ({', '.join(cameras)}) is {size[0]}x{size[1]} like "
+                           f"{images[0].path}")
+    raise AppdgenError(f"{calib_path}: cameras {', '.join(fitting)} fit the images; choose one with --camera")
+
+
+@main.command()
+@calib_option
+@camera_option
+@click.option("--images", "images_spec", required=True,
+              help="Raw images: a folder (recursive), a glob pattern, or a list file ('PATH [SPLIT]' per line).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--samples", type=int, default=None, help="Total samples [default: 10 per image].")
+@click.option("--per-image", type=int, default=None, help="Samples per raw image (instead of --samples).")
+@size_option
+@click.option("--format", "image_format", default="png", type=click.Choice(["png", "jpg", "npy"]), show_default=True,
+              help="Image encoding in the shards (png: compression level 1).")
+@click.option("--shard-size", default=1000, show_default=True, help="Samples per shard.")
+@click.option("--jobs", type=int, default=None, help="Parallel workers [default: all cores].")
+@click.option("--seed", default=0, show_default=True, help="Build seed: the same seed gives the same bytes.")
+@click.option("--ranges", default=None, metavar="NAME=LO:HI,...",
+              help="Override ranges: '%' bounds are relative to the reference (fx=-5%:20%), bare ones absolute "
+                   "(k3=-0.01:0.01). Defaults: focal -5%:20%, principal point -5%:5%, distortion -15%:15%.")
+@click.option("--appd-max", default=1.0, show_default=True, help="Largest APPD label, % of the raw diagonal.")
+@click.option("--zero-fraction", default=0.01, show_default=True, help="Fraction of samples that are exactly Θ*.")
+@click.option("--interp", default="lanczos4", type=click.Choice(["nearest", "linear", "cubic", "lanczos4"]),
+              show_default=True, help="Interpolation of the remap.")
+@click.option("--split-by", default="none", type=click.Choice(["none", "parent", "day", "drive"]), show_default=True,
+              help="Split column from the path: first folder, KITTI day, or KITTI drive (list files may name splits).")
+@click.option("--skip-bad", is_flag=True, help="Skip (and count) images of the wrong size or unreadable headers.")
+@click.option("--resume", is_flag=True, help="Finish an interrupted build in --out (same inputs and options).")
+@click.option("--overwrite", is_flag=True, help="Replace a previous build in --out.")
+@click.option("--backend", default="loky", type=click.Choice(["loky", "dask"]), show_default=True,
+              help="Parallel backend: local processes (loky) or a Dask cluster.")
+@click.option("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://host:8786.")
+@click.option("--quiet", is_flag=True, help="No progress line.")
+@fail_cleanly
+def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, image_format, shard_size, jobs, seed,
+          ranges, appd_max, zero_fraction, interp, split_by, skip_bad, resume, overwrite, backend, scheduler, quiet):
+    """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
+    from appdgen.build import BuildConfig, build as run_build
+    from appdgen.distribute import default_jobs
+    from appdgen.sampling import parse_ranges
+    from appdgen.sources import check_sizes, list_images
+
+    if samples is not None and per_image is not None:
+        raise AppdgenError("give --samples or --per-image, not both")
+    if resume and overwrite:
+        raise AppdgenError("give --resume or --overwrite, not both")
+    if per_image is not None and per_image < 1:
+        raise AppdgenError(f"--per-image {per_image}: must be at least 1")
+    images = list_images(images_spec, split_by)
+    camera = choose_camera(calib_path, camera, images)
+    reference = load_calibration(calib_path, camera)
+    images, skipped = check_sizes(images, reference.size, skip_bad)
+    total = samples if samples is not None else len(images) * (per_image if per_image is not None else 10)
+    config = BuildConfig(
+        reference=reference, camera=camera, calib_path=calib_path, images=tuple(images), samples=total,
+        size=parse_size(size) or reference.size, image_format=image_format, shard_size=shard_size, seed=seed,
+        ranges=parse_ranges(ranges), appd_max=appd_max, zero_fraction=zero_fraction, interp=interp,
+    )
+    summary = run_build(config, Path(out_dir), jobs or default_jobs(), backend, scheduler, resume, overwrite,
+                        progress=not quiet, command=["appdgen", *sys.argv[1:]], skipped=skipped)
+    t = summary["timings"]
+    skipped_note = f", {len(skipped)} images skipped" if skipped else ""
+    click.echo(f"built {total} samples in {config.shards} shards ({t['shards_built']} now, {t['shards_resumed']} "
+               f"resumed) in {t['wall_seconds']:.1f} s: {t['samples_per_second'] or 0:.1f} samples/s, "
+               f"{t['mb_written']:.1f} MB written{skipped_note} -> {out_dir}")
+
+
+@main.command()
+@click.option("--calib", "calib_path", default=None, type=click.Path(dir_okay=False),
+              help="Calibration file [default: the bundled KITTI 2011_09_26 file, camera 02].")
+@camera_option
+@click.option("--frames", type=int, required=True, help="Number of frames to render.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--seed", default=0, show_default=True, help="Scene seed: frame i depends on (seed, i) only.")
+@click.option("--scale", default=1.0, show_default=True,
+              help="Render a smaller camera: size and K scaled, distortion unchanged (0.25 → 348x128 for KITTI).")
+@click.option("--quiet", is_flag=True, help="No progress line.")
+@fail_cleanly
+def synth(calib_path, camera, frames, out_dir, seed, scale, quiet):
+    """Render procedural street frames as the (scaled) camera sees them, plus its calibration.yaml."""
+    from appdgen.defaults import DEFAULT_CALIB_PATH
+    from appdgen.formats import save
+    from appdgen.progress import Progress
+    from appdgen.synth import scale_calibration, synthesize
+
+    if frames < 1:
+        raise AppdgenError(f"--frames {frames}: must be at least 1")
+    if not 0 < scale <= 4:
+        raise AppdgenError(f"--scale {scale}: must be in (0, 4]")
+    calib = load_calibration(calib_path or str(DEFAULT_CALIB_PATH), camera or (None if calib_path else "02"))
+    scaled = scale_calibration(calib, scale)
+    out = Path(out_dir)
+    bar = Progress(frames, unit="frames", enabled=not quiet)
+    synthesize(calib, frames, out, seed, scale, progress=bar.advance)
+    save(scaled, out / "calibration.yaml")
+    click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}) and calibration.yaml to {out_dir}")
+
+
+@main.command("inspect")
+@click.argument("out_dir", metavar="OUT", type=click.Path(file_okay=False))
+@click.option("--sheet", default=None, type=click.Path(dir_okay=False),
+              help="Also write a contact sheet PNG of samples spread over the APPD range.")
+@click.option("--count", default=24, show_default=True, help="Samples on the contact sheet.")
+@fail_cleanly
+def inspect_command(out_dir, sheet, count):
+    """Summarise a finished build: counts, splits, APPD histogram, sampler speed, size on disk."""
+    from appdgen.images import write_image
+    from appdgen.inspection import contact_sheet, summary
+
+    click.echo(summary(Path(out_dir)))
+    if sheet is not None:
+        image = contact_sheet(Path(out_dir), count)
+        write_image(Path(sheet), image)
+        click.echo(f"wrote {sheet} ({image.shape[1]}x{image.shape[0]})")
+
+
+@main.command("verify")
+@click.argument("out_dir", metavar="OUT", type=click.Path(file_okay=False))
+@fail_cleanly
+def verify_command(out_dir):
+    """Re-read every shard and check it against labels.parquet and build.json (exit 1 on any mismatch)."""
+    from appdgen.inspection import verify
+
+    report = verify(Path(out_dir))
+    checked = f"{report.samples} samples in {report.shards} shards"
+    if report.ok:
+        click.echo(f"verified {checked}: OK")
+        return
+    for line in report.problems[:VERIFY_LINES]:
+        click.echo(line)
+    if report.total > VERIFY_LINES:
+        click.echo(f"… and {report.total - VERIFY_LINES} more")
+    noun = "problem" if report.total == 1 else "problems"
+    click.echo(f"verify failed: {report.total} {noun} in {checked} ({out_dir})", err=True)
+    sys.exit(1)
+
+
+@main.command()
+@click.argument("kitti_root", required=False, type=click.Path(file_okay=False))
+@click.option("--camera", default="02", show_default=True, help="KITTI camera: lists image_<camera>/data/*.png.")
+@click.option("--split-file", default=None, type=click.Path(dir_okay=False),
+              help="'DRIVE SPLIT' / 'DAY SPLIT' lines, e.g. manifests/kitti_raw_split.txt [default: split = day].")
+@click.option("--nuscenes", "nuscenes_root", default=None, type=click.Path(file_okay=False),
+              help="List a nuScenes tree instead: ROOT/samples/<channel>/*.jpg.")
+@click.option("--channel", default="CAM_FRONT", show_default=True, help="nuScenes camera channel.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="List file; for KITTI one list per day: kitti_02.txt -> kitti_02_<day>.txt.")
+@fail_cleanly
+def manifest(kitti_root, camera, split_file, nuscenes_root, channel, output):
+    """Write image lists ('PATH SPLIT' lines) for build --images from a local KITTI raw or nuScenes tree."""
+    from appdgen.manifest import kitti_manifests, nuscenes_manifest
+
+    if (kitti_root is None) == (nuscenes_root is None):
+        raise AppdgenError("give a KITTI_ROOT or --nuscenes ROOT (one of them)")
+    if nuscenes_root is not None:
+        count = nuscenes_manifest(Path(nuscenes_root), channel, Path(output))
+        click.echo(f"{count} images -> {output} (split 'all'; build with the calibrated_sensor record of the car "
+                   f"that recorded them)")
+        return
+    for day in kitti_manifests(Path(kitti_root), camera, Path(output), Path(split_file) if split_file else None):
+        splits = ", ".join(f"{name} {n}" for name, n in day.splits.items())
+        drives = f"{day.drives} drive" + ("s" if day.drives != 1 else "")
+        click.echo(f"{day.day}: {drives}, {day.images} images ({splits}) -> {day.path}")
+        if not day.calibration.is_file():
+            click.echo(f"  warning: {day.calibration} is missing (sizes not checked); get the day's calibration "
+                       f"before building", err=True)
+        click.echo(f"  appdgen build --calib {day.calibration} --camera {day.camera} --images {day.path} "
+                   f"--out OUT_{day.day}")

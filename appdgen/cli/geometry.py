@@ -1,0 +1,89 @@
+"""CLI commands on one calibration: APPD between calibrations, rectifying one image."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from appdgen.calibration import Calibration
+from appdgen.cli.base import (
+    fail_cleanly,
+    parse_size,
+    load_calibration,
+    modified,
+    calib_option,
+    camera_option,
+    set_option,
+    perturb_option,
+    size_option,
+    json_option,
+    main,
+)
+from appdgen.errors import AppdgenError
+
+
+def _describe(calib: Calibration, new_k) -> dict:
+    """A calibration's parameters, size and output camera matrix K̂, JSON-ready."""
+    return {**calib.params(), "size": list(calib.size), "new_camera_matrix": new_k.tolist()}
+
+
+@main.command()
+@calib_option
+@camera_option
+@set_option
+@perturb_option
+@click.option("--against", "against_path", default=None, type=click.Path(dir_okay=False),
+              help="Compare with this second calibration file instead of a perturbation.")
+@click.option("--against-camera", default=None, help="Camera in the --against file (default: --camera).")
+@size_option
+@json_option
+@fail_cleanly
+def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size, as_json):
+    """APPD between a reference calibration and a perturbed (or second) one."""
+    from appdgen.appd import appd_px, px_to_pct
+    from appdgen.maps import rectify
+
+    reference = load_calibration(calib_path, camera)
+    other = load_calibration(against_path, against_camera or camera) if against_path else reference
+    other = modified(other, sets, perturbs)
+    if other.size != reference.size:
+        raise AppdgenError(f"{against_path}: raw size {other.size} differs from {calib_path}'s {reference.size}")
+    out_size = parse_size(size)
+    ref_rect, other_rect = rectify(reference, out_size), rectify(other, out_size)
+    value = appd_px(ref_rect, other_rect)
+    result = {
+        "appd_px": value,
+        "appd_pct": px_to_pct(value, reference),
+        "size": list(ref_rect.size),
+        "reference": _describe(reference, ref_rect.new_camera_matrix),
+        "perturbed": _describe(other, other_rect.new_camera_matrix),
+    }
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+    else:
+        click.echo(f"APPD {value:.4f} px = {result['appd_pct']:.4f} % of the {reference.diagonal:.1f} px diagonal "
+                   f"(output {ref_rect.size[0]}x{ref_rect.size[1]})")
+
+
+@main.command()
+@calib_option
+@camera_option
+@set_option
+@perturb_option
+@size_option
+@click.option("--interp", default="lanczos4", type=click.Choice(["nearest", "linear", "cubic", "lanczos4"]),
+              show_default=True, help="Interpolation of the remap.")
+@click.argument("image", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output image (PNG, JPG…).")
+@fail_cleanly
+def rectify(calib_path, camera, sets, perturbs, size, interp, image, output):
+    """Rectify, crop and rescale one raw image with a (perturbed) calibration."""
+    from appdgen.images import read_image, write_image
+    from appdgen.maps import rectify as rectify_calibration
+    from appdgen.render import remap_image
+
+    calib = modified(load_calibration(calib_path, camera), sets, perturbs)
+    rect = rectify_calibration(calib, parse_size(size))
+    write_image(Path(output), remap_image(read_image(Path(image)), rect, interp))
+    click.echo(f"wrote {output} ({rect.size[0]}x{rect.size[1]})")

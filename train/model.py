@@ -107,10 +107,14 @@ class AppdNet(nn.Module):
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
-        """Xavier-uniform weights and zero biases, as Keras' default glorot init in the paper."""
+        """Xavier-uniform weights (with the ReLU gain √2 where a ReLU follows) and zero biases."""
+        # Plain Xavier (Keras' glorot default) halves the signal's variance at every ReLU: after 16 layers the
+        # output std was 2e-4 of its input's and the net sat at the mean predictor. The ReLU gain keeps it ~1.
+        relu_gain = nn.init.calculate_gain("relu")
+        last = self.head[-1]
         for m in self.modules():
             if isinstance(m, (nn.Conv2d, nn.Linear)):
-                nn.init.xavier_uniform_(m.weight)
+                nn.init.xavier_uniform_(m.weight, gain=1.0 if m is last else relu_gain)
                 nn.init.zeros_(m.bias)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

@@ -4,8 +4,10 @@ from __future__ import annotations
 import os
 import re
 import secrets
-from contextlib import suppress
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from pathlib import Path
+from typing import BinaryIO
 
 from appdgen.errors import AppdgenError
 
@@ -19,19 +21,26 @@ def temporary_target(name: str) -> str | None:
     return match.group("target") if match else None
 
 
-def atomic_write(target: Path, data: bytes) -> None:
-    """Write bytes to a synced temporary file beside `target`, then rename it over `target` (OSError passes)."""
+@contextmanager
+def atomic_stream(target: Path) -> Iterator[BinaryIO]:
+    """A binary stream that appears at `target` only when the block ends without error (synced, renamed)."""
     temporary = target.with_name(f".{target.name}.{secrets.token_hex(4)}.tmp")
     try:
         fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # umask applies, as for open()
         with os.fdopen(fd, "wb") as stream:
-            stream.write(data)
+            yield stream
             stream.flush()
             os.fsync(stream.fileno())
         os.replace(temporary, target)
     finally:
         with suppress(OSError):
             temporary.unlink(missing_ok=True)
+
+
+def atomic_write(target: Path, data: bytes) -> None:
+    """Write bytes to a synced temporary file beside `target`, then rename it over `target` (OSError passes)."""
+    with atomic_stream(target) as stream:
+        stream.write(data)
 
 
 def write_file(target: Path, data: bytes) -> None:

@@ -117,22 +117,24 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> dict:
     sampler = Sampler(config.reference, config.ranges, config.appd_max, config.zero_fraction, config.size)
     reference = rectify(config.reference, config.size)
     ext = FORMATS[config.image_format]
-    tar, rows, evaluations, sampler_seconds = TarShard(), [], 0, 0.0
+    rows, evaluations, sampler_seconds = [], 0, 0.0
     cache: tuple[Path, np.ndarray] | None = None
-    for index in config.shard_samples(shard):
-        draw = sampler.draw(config.seed, index)
-        evaluations, sampler_seconds = evaluations + draw.evaluations, sampler_seconds + draw.seconds
-        rect = reference if draw.is_reference else rectify(draw.calib, config.size)
-        raw_image = config.image_for(index)
-        if cache is None or cache[0] != raw_image.path:
-            cache = (raw_image.path, read_image(raw_image.path))
-        data = encode_image(remap_image(cache[1], rect, config.interp), ext)
-        row = _label_row(config, shard, index, raw_image, draw.is_reference, rect, appd_px(reference, rect))
-        tar.add(f"{row['key']}.json", record_json(row))
-        row["sha256"] = hashlib.sha256(data).hexdigest()
-        tar.add(f"{row['key']}{ext}", data)
-        rows.append(row)
-    size = tar.write(out / shard_name(shard))
+    # Streamed to disk as it grows: a 1,000-sample full-size shard would be ~1 GB in memory.
+    with TarShard(out / shard_name(shard)) as tar:
+        for index in config.shard_samples(shard):
+            draw = sampler.draw(config.seed, index)
+            evaluations, sampler_seconds = evaluations + draw.evaluations, sampler_seconds + draw.seconds
+            rect = reference if draw.is_reference else rectify(draw.calib, config.size)
+            raw_image = config.image_for(index)
+            if cache is None or cache[0] != raw_image.path:
+                cache = (raw_image.path, read_image(raw_image.path))
+            data = encode_image(remap_image(cache[1], rect, config.interp), ext)
+            row = _label_row(config, shard, index, raw_image, draw.is_reference, rect, appd_px(reference, rect))
+            tar.add(f"{row['key']}.json", record_json(row))
+            row["sha256"] = hashlib.sha256(data).hexdigest()
+            tar.add(f"{row['key']}{ext}", data)
+            rows.append(row)
+    size = tar.size
     stats = {"shard": shard, "file": shard_name(shard), "samples": len(rows), "bytes": size,
              "splits": dict(sorted(Counter(r["split"] for r in rows).items())),
              "references": sum(r["is_reference"] for r in rows), "evaluations": evaluations,

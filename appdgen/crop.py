@@ -6,10 +6,10 @@ distortion is monotone (checked), u grows with x and v with y, so the valid set 
     L(y) ≤ x ≤ R(y)   (u = 0 and u = W−1),        T(x) ≤ y ≤ B(x)   (v = 0 and v = H−1),
 
 and a rectangle [x0, x1] × [y0, y1] is valid exactly when x0 ≥ max L, x1 ≤ min R over [y0, y1] and y0 ≥ max T,
-y1 ≤ min B over [x0, x1]. The four graphs are solved by Newton's method on dense uniform grids (2,049 nodes); a
+y1 ≤ min B over [x0, x1]. The four graphs are solved by Newton's method on dense uniform grids (1,025 nodes); a
 max/min over an interval is taken over the nodes inside plus the linearly interpolated ends, which errs by at
-most f''·Δ²/8 (about 4e-5 pixel for KITTI-like lenses). The size is then the root of "room left − size" and,
-when one axis has room to spare, the rectangle is centred in the range of feasible positions along it.
+most f''·Δ²/8 (measured: ≤ 7e-4 output px against 16,385 nodes, over 30 random calibrations in the paper's
+ranges). The size is then the root of "room left − size" and, when one axis has room to spare, the rectangle is centred in the range of feasible positions along it.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from appdgen.distortion import (
 )
 from appdgen.errors import AppdgenError
 
-GRID_NODES = 2049
+GRID_NODES = 1025
 _TOL = 1e-11  # normalized units: about 1e-8 output pixel
 
 
@@ -81,17 +81,21 @@ def _solve_axis(fixed: np.ndarray, target: np.ndarray, calib: Calibration, p1: n
     """
     k1, k2, k3 = calib.k1, calib.k2, calib.k3
     t, f2, p1f2 = target.copy(), fixed * fixed, 2.0 * p1 * fixed
-    for _ in range(16):
-        # From the distorted value Newton converges in ~6 steps where a root exists; points with no root inside
-        # the fold radius never settle, so the loop is capped and those are caught below.
-        r2 = t * t + f2
-        poly = k1 + r2 * (k2 + r2 * k3)
-        td = t * (1.0 + r2 * poly) + p1f2 * t + p2 * (r2 + 2.0 * t * t)
-        slope = 1.0 + r2 * poly + 2.0 * t * t * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)) + p1f2 + 6.0 * p2 * t
-        step = (td - target) / slope
-        t = t - step
-        if not np.abs(step).max() > 1e-13:  # ~1e-10 px: converged (rounding keeps smaller steps jittering)
-            break
+    active = np.arange(t.size)
+    with np.errstate(all="ignore"):  # diverging points turn non-finite, leave the active set, and are caught below
+        for _ in range(16):
+            # From the distorted value Newton converges in ~6 steps where a root exists; iterating only on the
+            # points still moving keeps those with no root inside the fold radius from costing every step.
+            ta, fa2, pa, qa, goal = t[active], f2[active], p1f2[active], p2[active], target[active]
+            r2 = ta * ta + fa2
+            poly = k1 + r2 * (k2 + r2 * k3)
+            td = ta * (1.0 + r2 * poly) + pa * ta + qa * (r2 + 2.0 * ta * ta)
+            slope = 1.0 + r2 * poly + 2.0 * ta * ta * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)) + pa + 6.0 * qa * ta
+            step = (td - goal) / slope
+            t[active] = ta - step
+            active = active[np.abs(step) > 1e-13]  # ~1e-10 px: converged (smaller steps are rounding jitter)
+            if active.size == 0:
+                break
     r2 = t * t + f2
     td = t * (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) + p1f2 * t + p2 * (r2 + 2.0 * t * t)
     missing = ~((np.abs(td - target) < 1e-12) & (r2 < r_fold * r_fold))
@@ -120,7 +124,7 @@ def _fold_error(calib: Calibration, r_fold: float) -> AppdgenError:
 
 def _frame_box(calib: Calibration, r_fold: float) -> tuple[float, float, float, float]:
     """A box (x0, x1, y0, y1), normalized, holding the undistorted frame border within the fold radius."""
-    x, y = undistort_pixels(*_border_pixels(calib, 17), calib, on_failure="nan")
+    x, y = undistort_pixels(*_border_pixels(calib, 17), calib, iterations=12, on_failure="nan")
     ok = np.isfinite(x) & (np.hypot(x, y) < r_fold)
     if not ok.all():
         # Part of the border lies beyond the fold: the fold circle then bounds the valid set there.

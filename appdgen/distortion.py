@@ -1,6 +1,8 @@
 """The radial-tangential (OpenCV / Brown–Conrady) lens model in plain numpy, float64 and vectorized."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from appdgen.calibration import Calibration
@@ -40,14 +42,20 @@ def distortion_jacobian(x: np.ndarray, y: np.ndarray, calib: Calibration) -> tup
 
 def radial_fold_radius(calib: Calibration, r_max: float = 10.0) -> float:
     """Smallest undistorted radius (normalized) where r·radial(r) stops growing; inf when not below r_max."""
+    return _fold_radius(calib.k1, calib.k2, calib.k3, r_max)
+
+
+@functools.lru_cache(maxsize=256)
+def _fold_radius(k1: float, k2: float, k3: float, r_max: float) -> float:
+    """radial_fold_radius of the radial coefficients (cached: the crop and the inverse both ask, per sample)."""
     # d/dr [r (1 + k1 r² + k2 r⁴ + k3 r⁶)] = 1 + 3 k1 q + 5 k2 q² + 7 k3 q³ with q = r². Scan, then bisect in
     # plain floats: LAPACK's root finder (np.roots) differed in the last bit between processes with different
     # BLAS threading, and that bit reached the crop.
-    def slope(q: float) -> float:
-        return 1.0 + q * (3.0 * calib.k1 + q * (5.0 * calib.k2 + q * 7.0 * calib.k3))
+    def slope(q):
+        return 1.0 + q * (3.0 * k1 + q * (5.0 * k2 + q * 7.0 * k3))
 
     grid = np.linspace(0.0, r_max * r_max, 4097)
-    negative = np.nonzero(1.0 + grid * (3.0 * calib.k1 + grid * (5.0 * calib.k2 + grid * 7.0 * calib.k3)) <= 0)[0]
+    negative = np.nonzero(slope(grid) <= 0)[0]
     if negative.size == 0:
         return float("inf")
     lo, hi = float(grid[negative[0] - 1]), float(grid[negative[0]])

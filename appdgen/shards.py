@@ -4,12 +4,13 @@ from __future__ import annotations
 import io
 import json
 import tarfile
+from contextlib import ExitStack
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from appdgen.atomic import atomic_write
+from appdgen.atomic import atomic_stream, atomic_write
 
 SHARD_PATTERN = "shard-{:06d}.tar"
 PARTS_DIR = ".parts"
@@ -37,12 +38,17 @@ def sample_key(index: int) -> str:
 
 
 class TarShard:
-    """Collects `<key>.<ext>` members in memory and writes them as one tar with fixed metadata."""
+    """Streams `<key>.<ext>` members into a shard tar that appears (atomically) when the block ends cleanly."""
 
-    def __init__(self) -> None:
-        self._buffer = io.BytesIO()
+    def __init__(self, path: Path) -> None:
+        self.path, self.size = path, 0
+        self._stack = ExitStack()
+
+    def __enter__(self) -> "TarShard":
+        self._stream = self._stack.enter_context(atomic_stream(self.path))
         # USTAR with zeroed times/owners: the same samples always give the same bytes.
-        self._tar = tarfile.open(fileobj=self._buffer, mode="w", format=tarfile.USTAR_FORMAT)
+        self._tar = tarfile.open(fileobj=self._stream, mode="w", format=tarfile.USTAR_FORMAT)
+        return self
 
     def add(self, name: str, data: bytes) -> None:
         """Append one regular-file member."""
@@ -52,12 +58,11 @@ class TarShard:
         info.uname = info.gname = ""
         self._tar.addfile(info, io.BytesIO(data))
 
-    def write(self, path: Path) -> int:
-        """Close the archive and write it atomically; returns its size in bytes."""
-        self._tar.close()
-        data = self._buffer.getvalue()
-        atomic_write(path, data)
-        return len(data)
+    def __exit__(self, *exc_info) -> None:
+        if exc_info[0] is None:
+            self._tar.close()
+            self.size = self._stream.tell()
+        self._stack.__exit__(*exc_info)
 
 
 def record_json(record: dict) -> bytes:

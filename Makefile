@@ -47,10 +47,10 @@ train: $(TRAIN_STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_geometry.py
-	$(PY) benchmarks/bench_build.py
+	$(PY) benchmarks/bench_build.py --samples 160
 
 bench-rss: $(STAMP)
-	$(PY) benchmarks/bench_build.py --samples 40 --rss
+	$(PY) benchmarks/bench_build.py --rss-only
 
 clean:
 	rm -rf $(VENV) $(DEMO) runs build dist *.egg-info .pytest_cache .hypothesis

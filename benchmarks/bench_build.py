@@ -77,9 +77,9 @@ def rss_profile(raw_dir: Path, out: Path, samples: int) -> None:
                 peaks.setdefault(pid, []).append(rss)
         time.sleep(0.5)
     for pid, series in peaks.items():
-        tenth = max(1, len(series) // 10)
-        print(f"  pid {pid}: peak {max(series):6.1f} MB, first 10 % {max(series[:tenth]):6.1f} MB, "
-              f"last 10 % {max(series[-tenth:]):6.1f} MB over {len(series) / 2:.0f} s")
+        at = [series[min(len(series) - 1, int(f * len(series)))] for f in (0.25, 0.5, 0.75, 1.0)]
+        print(f"  pid {pid}: peak {max(series):6.1f} MB; at 25/50/75/100 % of the run "
+              f"{' / '.join(f'{v:.1f}' for v in at)} MB over {len(series) / 2:.0f} s")
 
 
 def _descendants(pid: int) -> list[int]:
@@ -105,12 +105,16 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=160)
     parser.add_argument("--size", default="1392x512")
     parser.add_argument("--rss", action="store_true", help="also profile worker RSS over 10,000 samples")
+    parser.add_argument("--rss-only", action="store_true", help="only profile worker RSS")
     args = parser.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
     with tempfile.TemporaryDirectory() as tmp:
         raw, out = Path(tmp) / "raw", Path(tmp) / "out"
         raw.mkdir()
         make_raw(raw, 8)
+        if args.rss_only:
+            rss_profile(raw, out, 10_000)
+            return
         floor = floor_rate(raw, args.samples, size)
         one = build_rate(raw, out, args.samples, size, 1)
         two = build_rate(raw, out, args.samples, size, 2)

@@ -11,7 +11,7 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
-from appdgen.atomic import atomic_write
+from appdgen.atomic import write_file
 from appdgen.errors import AppdgenError
 from appdgen.formats import load
 from appdgen.sources import KITTI_DAY, KITTI_DRIVE, image_size
@@ -104,11 +104,7 @@ def list_line(image: Path, folder: Path) -> str:
 def write_list(path: Path, entries: list[tuple[Path, str]]) -> None:
     """Write 'PATH SPLIT' lines atomically (AppdgenError naming the list when it cannot be written)."""
     text = "".join(f"{list_line(image, path.parent)} {split}\n" for image, split in entries)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, text.encode("utf-8"))
-    except OSError as exc:
-        raise AppdgenError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    write_file(path, text.encode("utf-8"))
 
 
 def day_list_path(output: Path, day: str) -> Path:

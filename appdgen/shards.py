@@ -72,10 +72,7 @@ def record_json(record: dict) -> bytes:
 
 def write_fragment(path: Path, rows: list[dict]) -> None:
     """One shard's label rows as a Parquet file, atomically."""
-    table = pa.Table.from_pylist(rows, schema=LABEL_SCHEMA)
-    sink = pa.BufferOutputStream()
-    pq.write_table(table, sink, compression="zstd")
-    atomic_write(path, sink.getvalue().to_pybytes())
+    _write_table(path, pa.Table.from_pylist(rows, schema=LABEL_SCHEMA))
 
 
 def read_fragment(path: Path) -> pa.Table:
@@ -86,7 +83,12 @@ def read_fragment(path: Path) -> pa.Table:
 def write_index(path: Path, fragments: list[Path]) -> int:
     """Concatenate shard fragments in order into labels.parquet, atomically; returns the row count."""
     table = pa.concat_tables([read_fragment(f) for f in fragments]) if fragments else LABEL_SCHEMA.empty_table()
+    _write_table(path, table)
+    return table.num_rows
+
+
+def _write_table(path: Path, table: pa.Table) -> None:
+    """A Parquet file (zstd, no timestamps: same rows, same bytes), written atomically."""
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink, compression="zstd")
     atomic_write(path, sink.getvalue().to_pybytes())
-    return table.num_rows

@@ -227,8 +227,13 @@ def test_max_minutes_stops_early_with_a_checkpoint(shards, tmp_path, capsys):
 def test_evaluate_reports_bins_and_classification(trained, shards, tmp_path, capsys):
     out = tmp_path / "eval.json"
     plot = tmp_path / "eval.png"
-    result = json.loads(run_cli(["evaluate", "--ckpt", trained / "last.pt", "--shards", shards, "--split", "test",
-                                 "--json", out, "--plot", plot, "--threshold", "1.5", "--workers", 0], capsys))
+    main([str(a) for a in ["evaluate", "--ckpt", trained / "last.pt", "--shards", shards, "--split", "test",
+                           "--json", out, "--plot", plot, "--threshold", "1.5", "--workers", 0]])
+    stdout, stderr = capsys.readouterr()
+    result = json.loads(stdout)
+    ratio = result["mae"] / result["mean_predictor_mae"]
+    assert (f"test MAE {result['mae']:.3f} % vs mean-predictor MAE {result['mean_predictor_mae']:.3f} % "
+            f"(ratio {ratio:.2f}) on 24 images") in stderr
     assert json.loads(out.read_text()) == {k: v for k, v in result.items() if k != "plot"}
     assert result["n"] == 24 and len(result["bins"]) == 10 and result["bins"][-1]["hi"] == 3.0
     assert sum(b["n"] for b in result["bins"]) == 24

@@ -75,6 +75,15 @@ def evaluate(ckpt: str, shards: str, split: str, json_path: str | None, plot_pat
 
     result = run_eval(ckpt, shards, split, json_path, plot_path, threshold, batch, workers, device, precision)
     click.echo(json.dumps(result, indent=1))
+    click.echo(summary_line(result), err=True)
+
+
+def summary_line(result: dict) -> str:
+    """'split: MAE … vs mean predictor … (ratio …)' in % of the diagonal, for a human reading the run."""
+    ratio = result["mae_vs_mean_predictor"]
+    return (f"evaluate: {result['split']} MAE {result['mae']:.3f} % vs mean-predictor MAE "
+            f"{result['mean_predictor_mae']:.3f} % (ratio {'n/a' if ratio is None else f'{ratio:.2f}'}) "
+            f"on {result['n']} images")
 
 
 @cli.command()

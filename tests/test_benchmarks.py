@@ -1,0 +1,41 @@
+"""The learnability diagnostics in benchmarks/: the affine/non-affine split obeys its laws."""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+from appdgen.calibration import Calibration
+from appdgen.maps import rectify
+
+KITTI_02_QUARTER = Calibration(348, 128, 239.94775, 239.231275, 174.005425, 56.04515,
+                               -0.3691481, 0.1968681, 0.001353473, 0.0005677587, -0.06770705)
+
+
+def load_script(name: str):
+    """Import benchmarks/NAME.py as a module (benchmarks/ is not a package)."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+visibility = load_script("visibility")
+
+
+def test_affine_displacement_leaves_nothing_and_a_bend_is_measured():
+    v, u = np.mgrid[0:128:4, 0:348:4].astype(float)
+    u, v = u.ravel(), v.ravel()
+    assert visibility.non_affine_px(u, v, 1.5 + 0.01 * u - 0.02 * v, -0.7 + 0.03 * u) < 1e-9
+    bend = 1e-3 * (u - 174) ** 2  # a parabola: sagitta 30 px, mean |residual| a known fraction of it
+    expected = np.abs(bend - np.polyval(np.polyfit(u, bend, 1), u)).mean()
+    assert abs(visibility.non_affine_px(u, v, bend, 0 * u) - expected) < 1e-9
+
+
+def test_split_of_the_reference_is_zero_and_of_a_shift_mostly_affine():
+    ref = rectify(KITTI_02_QUARTER)
+    appd, rest = visibility.split(ref, KITTI_02_QUARTER)
+    assert appd == 0.0 and rest < 1e-4  # float32 maps round-trip to ~1e-5 px
+    appd, rest = visibility.split(ref, KITTI_02_QUARTER.replace(cx=KITTI_02_QUARTER.cx * 1.05))
+    assert appd > 5 and 0 < rest < 0.3 * appd  # a principal-point change reads mostly as a shift

@@ -14,8 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from appdgen._raster import Canvas
-from appdgen._street import Scene, random_street
+from appdgen.synth.raster import Canvas
+from appdgen.synth.street import Scene, random_street
 from appdgen.calibration import Calibration
 from appdgen.distortion import undistort_pixels
 from appdgen.errors import AppdgenError

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from appdgen._textures import MIP_SIGMAS
+from appdgen.synth.textures import MIP_SIGMAS
 
 #: Fixed-point bits cv2 drawing gets: sub-pixel vertex positions for anti-aliased edges.
 SHIFT = 4

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from appdgen import _textures
-from appdgen._raster import Camera, Canvas, Texture
+from appdgen.synth import textures as _textures
+from appdgen.synth.raster import Camera, Canvas, Texture
 
 UP = np.array([0.0, -1.0, 0.0])
 DOWN = -UP

@@ -1,10 +1,9 @@
-"""The radial-tangential (OpenCV / Brown–Conrady) lens model in plain numpy, float64 and vectorized."""
+"""Projection and its inverse for a Calibration, through its lens model (appdgen.lens): float64, vectorized."""
 from __future__ import annotations
-
-import functools
 
 import numpy as np
 
+from appdgen import lens
 from appdgen.calibration import Calibration
 from appdgen.errors import AppdgenError
 
@@ -13,14 +12,8 @@ TOLERANCE = 1e-10
 
 
 def distort_normalized(x: np.ndarray, y: np.ndarray, calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates."""
-    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (calib.k1 + r2 * (calib.k2 + r2 * calib.k3))
-    xy = x * y
-    xd = x * radial + 2.0 * calib.p1 * xy + calib.p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + calib.p1 * (r2 + 2.0 * y * y) + 2.0 * calib.p2 * xy
-    return xd, yd
+    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates, through calib's model."""
+    return lens.get(calib.model).project(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64), calib.coeffs)
 
 
 def distort_to_pixels(x: np.ndarray, y: np.ndarray, calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
@@ -31,40 +24,12 @@ def distort_to_pixels(x: np.ndarray, y: np.ndarray, calib: Calibration) -> tuple
 
 def distortion_jacobian(x: np.ndarray, y: np.ndarray, calib: Calibration) -> tuple[np.ndarray, ...]:
     """Partial derivatives (∂xd/∂x, ∂xd/∂y, ∂yd/∂x, ∂yd/∂y) of distort_normalized (unitless)."""
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (calib.k1 + r2 * (calib.k2 + r2 * calib.k3))
-    dradial = calib.k1 + r2 * (2.0 * calib.k2 + 3.0 * calib.k3 * r2)  # d(radial)/d(r²)
-    dxx = radial + 2.0 * x * x * dradial + 2.0 * calib.p1 * y + 6.0 * calib.p2 * x
-    dxy = 2.0 * x * y * dradial + 2.0 * calib.p1 * x + 2.0 * calib.p2 * y
-    dyy = radial + 2.0 * y * y * dradial + 6.0 * calib.p1 * y + 2.0 * calib.p2 * x
-    return dxx, dxy, dxy, dyy
+    return lens.get(calib.model).jacobian(x, y, calib.coeffs)
 
 
-def radial_fold_radius(calib: Calibration, r_max: float = 10.0) -> float:
-    """Smallest undistorted radius (normalized) where r·radial(r) stops growing; inf when not below r_max."""
-    return _fold_radius(calib.k1, calib.k2, calib.k3, r_max)
-
-
-@functools.lru_cache(maxsize=256)
-def _fold_radius(k1: float, k2: float, k3: float, r_max: float) -> float:
-    """radial_fold_radius of the radial coefficients (cached: the crop and the inverse both ask, per sample)."""
-    # d/dr [r (1 + k1 r² + k2 r⁴ + k3 r⁶)] = 1 + 3 k1 q + 5 k2 q² + 7 k3 q³ with q = r². Scan, then bisect in
-    # plain floats: LAPACK's root finder (np.roots) differed in the last bit between processes with different
-    # BLAS threading, and that bit reached the crop.
-    def slope(q):
-        return 1.0 + q * (3.0 * k1 + q * (5.0 * k2 + q * 7.0 * k3))
-
-    grid = np.linspace(0.0, r_max * r_max, 4097)
-    negative = np.nonzero(slope(grid) <= 0)[0]
-    if negative.size == 0:
-        return float("inf")
-    lo, hi = float(grid[negative[0] - 1]), float(grid[negative[0]])
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if mid in (lo, hi):
-            break
-        lo, hi = (mid, hi) if slope(mid) > 0 else (lo, mid)
-    return float(np.sqrt(lo))
+def radial_fold_radius(calib: Calibration) -> float:
+    """Undistorted normalized radius below which calib's model is one-to-one; inf when it has none."""
+    return lens.get(calib.model).fold_radius(calib.coeffs)
 
 
 def undistort_pixels(
@@ -113,7 +78,7 @@ def _failure_message(failed: np.ndarray, folded: np.ndarray, xd: np.ndarray, yd:
     why = "the lens model folds over there" if folded.ravel()[i] else "Newton's method did not converge"
     return (
         f"distortion cannot be inverted at {int(failed.sum())} point(s), e.g. raw pixel ({u:.1f}, {v:.1f}): {why} "
-        f"(k1={calib.k1:g}, k2={calib.k2:g}, p1={calib.p1:g}, p2={calib.p2:g}, k3={calib.k3:g})"
+        f"({calib.model}: {', '.join(f'{n}={v:g}' for n, v in zip(calib.param_names[4:], calib.coeffs))})"
     )
 
 

@@ -451,7 +451,8 @@ def _cv_matrix_text(name: str, matrix: np.ndarray) -> str:
 
 def _appdgen_json(calib: Calibration) -> str:
     """appdgen JSON (version 1): format tag, size and the nine parameters with exact float reprs."""
-    return json.dumps({"format": APPDGEN_FORMAT, "version": 1, **calib.to_dict()}, indent=2) + "\n"
+    fields = {k: v for k, v in calib.to_dict().items() if k != "model"}  # version 1 is radtan-only
+    return json.dumps({"format": APPDGEN_FORMAT, "version": 1, **fields}, indent=2) + "\n"
 
 
 def _write_atomic(target: Path, text: str) -> None:

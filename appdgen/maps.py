@@ -3,9 +3,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
+from appdgen import lens
 from appdgen.calibration import Calibration
 from appdgen.crop import Crop, check_output_size, valid_region
 
@@ -31,7 +31,7 @@ def rectify(calib: Calibration, size: tuple[int, int] | None = None, crop: Crop 
     size = check_output_size(calib, size or calib.size)
     crop = crop or valid_region(calib)
     new_k = crop.camera_matrix(size)
-    map_x, map_y = cv2.initUndistortRectifyMap(calib.K, calib.D, None, new_k, size, cv2.CV_32FC1)
+    map_x, map_y = lens.get(calib.model).maps(calib.K, calib.coeffs, new_k, size)
     return Rectification(calib, crop, new_k, map_x, map_y)
 
 

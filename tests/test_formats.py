@@ -72,7 +72,7 @@ def test_kitti_every_day_and_camera_matches_values_csv(shared: Path) -> None:
         path = shared / "kitti" / row["day"] / "calib_cam_to_cam.txt"
         values = {k: v for k, v in row.items() if k not in ("day", "camera")}
         expected = {k: (int(v) if k in ("width", "height") else float(v)) for k, v in values.items()}
-        assert load(path, camera=row["camera"]).to_dict() == expected, row
+        assert load(path, camera=row["camera"]).to_dict() == {**expected, "model": "radtan"}, row
     for day in {row["day"] for row in rows}:
         cameras = sorted(row["camera"] for row in rows if row["day"] == day)
         assert list_cameras(shared / "kitti" / day / "calib_cam_to_cam.txt") == cameras
@@ -105,7 +105,7 @@ def test_real_kalibr_camchains(shared: Path, name: str) -> None:
 
 def test_real_euroc_files_agree(shared: Path) -> None:
     sensor = load(shared / "formats" / "euroc_cam0_sensor.yaml")
-    assert sensor.to_dict() == {"width": 752, "height": 480, "fx": 458.654, "fy": 457.296, "cx": 367.215,
+    assert sensor.to_dict() == {"width": 752, "height": 480, "model": "radtan", "fx": 458.654, "fy": 457.296, "cx": 367.215,
                                 "cy": 248.375, "k1": -0.28340811, "k2": 0.07395907, "p1": 0.00019359,
                                 "p2": 1.76187114e-05, "k3": 0.0}
     assert sensor == load(shared / "formats" / "kalibr_imucam_chain.yaml", camera="cam0")
@@ -312,7 +312,7 @@ def test_written_files_look_as_documented(scratch: Path) -> None:
     save(calib, scratch / "calib.JSON")
     assert (scratch / "calib.yaml").read_text().startswith("%YAML:1.0\n---\n")
     doc = json.loads((scratch / "calib.JSON").read_text())
-    assert doc == {"format": "appdgen-calibration", "version": 1, **calib.to_dict()}
+    assert doc == {"format": "appdgen-calibration", "version": 1, **calib.params(), "width": 1280, "height": 720}
     assert json.loads((FIXTURES / "appdgen.json").read_text()) == doc
 
 

@@ -1,0 +1,69 @@
+"""Pinhole + radial-tangential (OpenCV's 5-coefficient model, Brown–Conrady): k1, k2, p1, p2, k3."""
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+
+NAME = "radtan"
+PARAMS: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3")
+#: Largest undistorted normalized radius searched for a fold (≈ 84° off-axis).
+R_MAX = 10.0
+
+
+def project(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates."""
+    k1, k2, p1, p2, k3 = coeffs
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xy = x * y
+    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
+    return xd, yd
+
+
+def jacobian(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, ...]:
+    """(∂xd/∂x, ∂xd/∂y, ∂yd/∂x, ∂yd/∂y) of project (unitless)."""
+    k1, k2, p1, p2, k3 = coeffs
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d(radial)/d(r²)
+    dxx = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+    dxy = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    dyy = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    return dxx, dxy, dxy, dyy
+
+
+def fold_radius(coeffs: tuple[float, ...]) -> float:
+    """Smallest undistorted radius (normalized) where r·radial(r) stops growing; inf when not below R_MAX."""
+    k1, k2, _, _, k3 = coeffs
+    return _fold_radius(k1, k2, k3, R_MAX)
+
+
+@functools.lru_cache(maxsize=256)
+def _fold_radius(k1: float, k2: float, k3: float, r_max: float) -> float:
+    """fold_radius of the radial coefficients (cached: the crop and the inverse both ask, per sample)."""
+    # d/dr [r (1 + k1 r² + k2 r⁴ + k3 r⁶)] = 1 + 3 k1 q + 5 k2 q² + 7 k3 q³ with q = r². Scan, then bisect in
+    # plain floats: LAPACK's root finder (np.roots) differed in the last bit between processes with different
+    # BLAS threading, and that bit reached the crop.
+    def slope(q):
+        return 1.0 + q * (3.0 * k1 + q * (5.0 * k2 + q * 7.0 * k3))
+
+    grid = np.linspace(0.0, r_max * r_max, 4097)
+    negative = np.nonzero(slope(grid) <= 0)[0]
+    if negative.size == 0:
+        return float("inf")
+    lo, hi = float(grid[negative[0] - 1]), float(grid[negative[0]])
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if mid in (lo, hi):
+            break
+        lo, hi = (mid, hi) if slope(mid) > 0 else (lo, mid)
+    return float(np.sqrt(lo))
+
+
+def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """float32 (map_x, map_y) raw-pixel positions for each output pixel of a pinhole camera new_K at size (w, h)."""
+    return cv2.initUndistortRectifyMap(K, np.asarray(coeffs, dtype=np.float64), None, new_K, size, cv2.CV_32FC1)

@@ -15,7 +15,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from appdgen import AppdgenError, Calibration
+from appdgen import AppdgenError, Calibration, lens
 from appdgen import formats
 from appdgen.formats import list_cameras, load, save
 
@@ -114,6 +114,49 @@ def test_real_euroc_files_agree(shared: Path) -> None:
             shared / "formats" / "kalibr_camchain_euroc.yaml", cam)
 
 
+def test_real_tumvi_kalibr_equidistant_is_kb4(shared: Path) -> None:
+    path = shared / "formats" / "kalibr_tumvi_pinhole_equi.yaml"
+    doc = yaml.safe_load(path.read_text())
+    assert list_cameras(path) == ["cam0", "cam1"]
+    for cam, block in doc.items():
+        (fx, fy, cx, cy), (w, h) = block["intrinsics"], block["resolution"]
+        assert load(path, cam) == Calibration(w, h, fx, fy, cx, cy, *block["distortion_coeffs"], model="kb4")
+    assert load(path, "cam0").to_dict() == {
+        "width": 512, "height": 512, "model": "kb4", "fx": 190.97847715128717, "fy": 190.9733070521226,
+        "cx": 254.93170605935475, "cy": 256.8974428996504, "k1": 0.0034823894022493434, "k2": 0.0007150348452162257,
+        "k3": -0.0020532361418706202, "k4": 0.00020293673591811182}
+
+
+@pytest.mark.parametrize(("name", "model"), [("basalt_t265_kb4_calib.json", "kb4"),
+                                             ("basalt_euroc_eucm_calib.json", "eucm")])
+def test_real_basalt_files(shared: Path, name: str, model: str) -> None:
+    path = shared / "formats" / name
+    doc = json.loads(path.read_text())["value0"]
+    assert list_cameras(path) == ["cam0", "cam1"]
+    for i, (camera, (w, h)) in enumerate(zip(doc["intrinsics"], doc["resolution"])):
+        assert camera["camera_type"] == model
+        calib = load(path, camera=i)
+        assert calib.model == model and calib.size == (w, h)
+        assert calib.params() == camera["intrinsics"]  # Basalt's names are appdgen's
+    assert load(shared / "formats" / "basalt_t265_kb4_calib.json", "cam1").k4 == 0.009643678532407407
+    assert load(shared / "formats" / "basalt_euroc_eucm_calib.json", "cam0").beta == 1.127468196965374
+
+
+def test_real_ros_rational_polynomial_is_rational(shared: Path) -> None:
+    path = shared / "formats" / "ros_camera_info_rational_2880x1860.yaml"
+    calib = load(path)
+    assert calib.model == "rational" and calib.size == (2880, 1860)
+    np.testing.assert_array_equal(calib.K, [[1495.316895, 0, 1424.459106], [0, 1494.778564, 943.463684], [0, 0, 1]])
+    assert calib.coeffs == (0.929988205433, 0.165922805667, -0.000024369263, -0.000013859207, 0.002885974478,
+                            1.331432461739, 0.435830116272, 0.027607271448, 0.0, 0.0, 0.0, 0.0)
+    _same_as_ros_yaml(calib, path)
+
+
+def test_real_kodak_plumb_bob_stays_radtan(shared: Path) -> None:
+    calib = load(shared / "formats" / "ros_camera_info_kodak.yaml")
+    assert calib.model == "radtan" and calib.k1 == -0.1710342568253523 and calib.k3 == 0.0
+
+
 def test_real_nuscenes(shared: Path) -> None:
     path = shared / "formats" / "nuscenes_calibrated_sensor.json"
     intrinsic = json.loads(path.read_text())[0]["camera_intrinsic"]
@@ -140,13 +183,78 @@ EXPECTED = {  # file, camera → (width, height, fx, fy, cx, cy, k1, k2, p1, p2,
 }
 
 
+MODEL_EXPECTED = {  # file, camera → (width, height, fx, fy, cx, cy, model, coefficients), written by hand
+    ("kalibr_models.yaml", "cam0"): (640, 480, 280.25, 280.5, 319.5, 239.75, "kb4", (-0.0125, 0.045, -0.04125, 0.0085)),
+    ("kalibr_models.yaml", "cam1"): (640, 480, 250.5, 250.25, 320.5, 240.25, "ds", (-0.21, 0.58)),
+    ("kalibr_models.yaml", "cam2"): (640, 480, 300.0, 299.5, 321.25, 238.5, "eucm", (0.61, 1.05)),
+    ("kalibr_models.yaml", "cam3"): (640, 480, 500.5, 500.25, 320.0, 240.0, "radtan", (0, 0, 0, 0, 0)),
+    ("basalt_models.json", "cam0"): (848, 800, 285.5, 285.25, 423.75, 399.5, "kb4", (-0.0075, 0.0455, -0.04375, 0.0084)),
+    ("basalt_models.json", "cam1"): (848, 800, 349.5, 349.25, 424.0, 400.5, "ds", (-0.185, 0.59)),
+    ("basalt_models.json", "cam2"): (752, 480, 460.75, 459.5, 365.875, 249.25, "eucm", (0.59, 1.125)),
+    ("basalt_models.json", "cam3"): (848, 800, 420.5, 421.0, 424.5, 399.5, "radtan", (0, 0, 0, 0, 0)),
+    ("basalt_models.json", "cam4"): (848, 800, 610.25, 610.5, 425.0, 398.75, "rational",
+                                     (0.85, 0.125, -2.5e-05, 1.5e-05, 0.0025, 1.25, 0.375, 0.025, 0, 0, 0, 0)),
+    ("ros_equidistant.yaml", None): (1280, 800, 410.25, 410.75, 639.5, 399.25, "kb4",
+                                     (0.0215, -0.0125, 0.0035, -0.00075)),
+    ("ros_rational8.yaml", None): (1920, 1200, 1010.5, 1011.25, 959.25, 600.75, "rational",
+                                   (0.75, 0.125, -2.5e-05, 1.25e-05, 0.0025, 1.125, 0.3125, 0.0225, 0, 0, 0, 0)),
+    ("opencv_fisheye.yml", None): (1024, 768, 330.25, 330.125, 511.5, 383.75, "kb4",
+                                   (0.0125, -0.00625, 0.001, -0.00025)),
+    ("opencv_thin_prism.xml", None): (1280, 960, 900.5, 901.75, 640.25, 479.5, "rational",
+                                      (-0.25, 0.0625, 0.0005, -0.00025, -0.0125, 0, 0, 0, 0.00125, -0.0005, 0.00075,
+                                       0.00025)),
+    ("appdgen_eucm.json", None): (752, 480, 460.75, 459.375, 365.875, 249.3125, "eucm", (0.59, 1.125)),
+}
+
+
+def _expected(name: str, camera: str | None) -> Calibration:
+    """The calibration a fixture holds, from the tables above."""
+    if (name, camera) in EXPECTED:
+        return Calibration(*EXPECTED[name, camera])
+    *head, model, coeffs = MODEL_EXPECTED[name, camera]
+    return Calibration(*head, *coeffs, model=model)
+
+
 def test_every_valid_fixture_is_covered() -> None:
-    assert {name for name, _ in EXPECTED} == {p.name for p in VALID}
+    assert {name for name, _ in [*EXPECTED, *MODEL_EXPECTED]} == {p.name for p in VALID}
+    for name in {name for name, _ in MODEL_EXPECTED}:
+        assert list_cameras(FIXTURES / name) == sorted({c or "0" for n, c in MODEL_EXPECTED if n == name})
 
 
-@pytest.mark.parametrize(("name", "camera"), sorted(EXPECTED, key=str))
+@pytest.mark.parametrize(("name", "camera"), sorted([*EXPECTED, *MODEL_EXPECTED], key=str))
 def test_fixture_values(name: str, camera: str | None) -> None:
-    assert load(FIXTURES / name, camera=camera) == Calibration(*EXPECTED[name, camera])
+    assert load(FIXTURES / name, camera=camera) == _expected(name, camera)
+
+
+@pytest.mark.parametrize("name", ["opencv_fisheye.yml", "opencv_thin_prism.xml"])
+def test_model_fixtures_agree_with_cv2(name: str) -> None:
+    _same_as_cv2(load(FIXTURES / name), FIXTURES / name)
+
+
+@pytest.mark.parametrize("name", ["ros_equidistant.yaml", "ros_rational8.yaml"])
+def test_ros_model_fixtures_agree_with_yaml(name: str) -> None:
+    _same_as_ros_yaml(load(FIXTURES / name), FIXTURES / name)
+
+
+def _same_as_cv2(calib: Calibration, path: Path) -> None:
+    """Assert calib's size, K and coefficients are what cv2.FileStorage reads (past-the-model terms being 0)."""
+    _same_vector(calib, *_cv2_read(path, "camera_matrix", "distortion_coefficients", "image_width", "image_height"))
+
+
+def _same_as_ros_yaml(calib: Calibration, path: Path) -> None:
+    """Assert calib's size, K and coefficients are a ROS camera_info's (cv2 cannot read those: no ``dt``)."""
+    doc = yaml.safe_load(path.read_text())
+    _same_vector(calib, doc["image_width"], doc["image_height"], np.reshape(doc["camera_matrix"]["data"], (3, 3)),
+                 np.array(doc["distortion_coefficients"]["data"]))
+
+
+def _same_vector(calib: Calibration, width: int, height: int, K: np.ndarray, D: np.ndarray) -> None:
+    """Assert calib has this size and K, and its coefficients are D's leading terms, the rest of D being 0."""
+    assert calib.size == (width, height)
+    np.testing.assert_array_equal(calib.K, K)
+    d = np.concatenate([D.ravel(), np.zeros(14)])
+    np.testing.assert_array_equal(calib.D, d[:calib.D.size])
+    assert not d[calib.D.size:].any()
 
 
 @pytest.mark.parametrize(("name", "keys"), [
@@ -200,14 +308,17 @@ def test_missing_camera_message_names_file_and_cameras() -> None:
 
 
 @pytest.mark.parametrize(("name", "listed"), [("kitti_reduced.txt", "02, 03"), ("kalibr.yaml", "cam0, cam1"),
-                                              ("nuscenes.json", "0, 1")])
+                                              ("nuscenes.json", "0, 1"),
+                                              ("basalt_models.json", "cam0, cam1, cam2, cam3, cam4")])
 def test_several_cameras_need_a_choice(name: str, listed: str) -> None:
-    with pytest.raises(AppdgenError, match=f"2 cameras; .*available: {listed}$"):
+    with pytest.raises(AppdgenError, match=f"[0-9] cameras; .*available: {listed}$"):
         load(FIXTURES / name)
 
 
 def test_single_camera_files_name_their_camera_0() -> None:
-    for name in ("appdgen.json", "euroc_sensor.yaml", "opencv.xml", "opencv4.yml", "ros_rational.yaml"):
+    for name in ("appdgen.json", "euroc_sensor.yaml", "opencv.xml", "opencv4.yml", "ros_rational.yaml",
+                 "appdgen_eucm.json", "ros_equidistant.yaml", "ros_rational8.yaml", "opencv_fisheye.yml",
+                 "opencv_thin_prism.xml"):
         assert list_cameras(FIXTURES / name) == ["0"]
         assert load(FIXTURES / name, camera="0") == load(FIXTURES / name)
 
@@ -250,11 +361,20 @@ MALFORMED = [  # file, load arguments, part of the message
     ("bad_matrix_count.xml", {}, "camera_matrix.data: expected 9 numbers, got 8"),
     ("bad_transposed.json", {"camera": "0"}, "transposed"),
     ("bad_skew.yaml", {}, "skewed camera matrix"),
-    ("bad_equidistant.yaml", {}, "distortion_model 'equidistant' is not supported"),
-    ("bad_fisheye_ros.yaml", {}, "distortion_model 'equidistant' is not supported"),
-    ("bad_rational_terms.yaml", {}, "past k3"),
+    ("bad_fisheye_ros.yaml", {}, "distortion_coefficients (equidistant: k1, k2, k3, k4): expected 4 numbers, got 8"),
+    ("bad_distortion_count.yaml", {}, "distortion_coefficients: expected 4 or 5 or 8 or 12 or 14 numbers, got 6"),
+    ("bad_tilted.yaml", {}, "OpenCV's tilted model"),
+    ("bad_omni.yaml", {}, "camera_model 'omni' is not supported; supported: pinhole, ds, eucm"),
+    ("bad_kalibr_fov.yaml", {}, "distortion_model 'fov' is not supported"),
+    ("bad_ds_intrinsics.yaml", {}, "intrinsics: camera_model ds expects 6 numbers [xi, alpha, fu, fv, pu, pv], got 4"),
+    ("bad_ds_distortion.yaml", {}, "camera_model ds with distortion_model 'radtan' is not supported"),
+    ("bad_basalt_type.json", {}, "value0.intrinsics[0].camera_type 'fov' is not supported"),
+    ("bad_basalt_missing.json", {}, "missing key value0.intrinsics[0].intrinsics.k3"),
+    ("bad_basalt_resolution.json", {}, "value0.resolution: expected a list of 2 [width, height]"),
+    ("bad_model.json", {}, "lens model 'omni' is not supported"),
+    ("bad_v2_missing.json", {}, "missing key alpha"),
     ("bad_no_size.yaml", {}, "no image size in the file"),
-    ("bad_version.json", {}, "version 2"),
+    ("bad_version.json", {}, "version 3; expected 1 or 2"),
     ("bad_no_camera.json", {}, "no camera"),
     ("bad_duplicate.txt", {}, "duplicate key K_02"),
     ("bad_fractional_size.txt", {}, "whole pixels"),
@@ -306,14 +426,46 @@ def test_save_load_round_trip_is_exact_and_cv2_reads_our_yaml(scratch: Path, cal
                             "image_width", "image_height"))
 
 
+MODELS = ("radtan", "rational", "kb4", "ds", "eucm")
+model_calibrations = st.sampled_from(MODELS).flatmap(lambda model: st.builds(
+    lambda w, h, f, c, coeffs: Calibration(w, h, *f, *c, *coeffs, model=model),
+    st.integers(2, 20000), st.integers(2, 20000), st.tuples(*[st.floats(min_value=1e-300, max_value=1e300)] * 2),
+    st.tuples(finite, finite),
+    # sparse coefficients too: the rational vector's zero tails pick its YAML length and its model on reading
+    st.lists(finite | st.just(0.0), min_size=len(lens.params(model)), max_size=len(lens.params(model)))))
+
+
+@settings(max_examples=60, deadline=None, database=None)
+@given(model_calibrations)
+def test_every_model_round_trips(scratch: Path, calib: Calibration) -> None:
+    save(calib, scratch / "model.json")
+    assert load(scratch / "model.json") == calib
+    if calib.model in ("ds", "eucm"):
+        with pytest.raises(AppdgenError, match=re.escape(f"model.yaml: OpenCV YAML cannot hold lens model "
+                                                         f"'{calib.model}'")):
+            save(calib, scratch / "model.yaml")
+        return
+    save(calib, scratch / "model.yaml")
+    back = load(scratch / "model.yaml")
+    if calib.model == "rational" and not any(calib.coeffs[5:]):
+        assert back == Calibration(*calib.size, *list(calib.params().values())[:9])  # the same lens, as radtan
+    else:
+        assert back == calib
+    _same_as_cv2(back, scratch / "model.yaml")
+
+
 def test_written_files_look_as_documented(scratch: Path) -> None:
     calib = load(FIXTURES / "appdgen.json")
     save(calib, scratch / "calib.yaml")
     save(calib, scratch / "calib.JSON")
     assert (scratch / "calib.yaml").read_text().startswith("%YAML:1.0\n---\n")
     doc = json.loads((scratch / "calib.JSON").read_text())
-    assert doc == {"format": "appdgen-calibration", "version": 1, **calib.params(), "width": 1280, "height": 720}
-    assert json.loads((FIXTURES / "appdgen.json").read_text()) == doc
+    assert doc == {"format": "appdgen-calibration", "version": 2, "model": "radtan", **calib.params(), "width": 1280,
+                   "height": 720}
+    version_1 = {k: v for k, v in doc.items() if k != "model"} | {"version": 1}
+    assert json.loads((FIXTURES / "appdgen.json").read_text()) == version_1  # still read, as radtan
+    save(load(FIXTURES / "appdgen_eucm.json"), scratch / "eucm.json")
+    assert (scratch / "eucm.json").read_text() == (FIXTURES / "appdgen_eucm.json").read_text()
 
 
 def test_save_is_atomic_and_leaves_no_temporary_files(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -404,9 +556,10 @@ def test_fuzz_mutated_valid_files(scratch: Path, text: str, suffix: str) -> None
 KEYS = ["camera_matrix", "distortion_coefficients", "image_width", "image_height", "rows", "cols", "data", "dt",
         "distortion_model", "camera_model", "intrinsics", "distortion_coeffs", "resolution", "cam0", "cam1",
         "camera_intrinsic", "format", "version", "width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2",
-        "k3"]
+        "k3", "k4", "xi", "alpha", "beta", "model", "value0", "camera_type"]
 scalars = (st.none() | st.booleans() | st.integers(-3, 2000) | st.floats()
-           | st.sampled_from(["pinhole", "radtan", "plumb_bob", "appdgen-calibration", "3", "nan", "", "1 2"]))
+           | st.sampled_from(["pinhole", "radtan", "plumb_bob", "appdgen-calibration", "3", "nan", "", "1 2", "ds",
+                             "eucm", "kb4", "equidistant", "fisheye", "none", "omni", "rational_polynomial"]))
 documents = st.recursive(
     scalars, lambda inner: st.lists(inner, max_size=9) | st.dictionaries(st.sampled_from(KEYS), inner, max_size=6),
     max_leaves=30,

@@ -3,6 +3,8 @@
 Conventions. Θ* is the reference calibration and Θm another one (perturbed, sampled, or another day's). Output
 positions are pixels of the rectified image at one output size, whose camera matrix is K̂(Θ) (from Θ's own valid
 crop); raw positions are pixels of the raw image. APPD is in raw pixels or in % of the raw diagonal √(W²+H²).
+Parameters are the calibration's own (``calib.param_names``: fx, fy, cx, cy and its lens model's coefficients).
+``max_fov`` (degrees, horizontal; None: unbounded) bounds the rectified field of view of Θ* and every Θm alike.
 """
 from __future__ import annotations
 
@@ -12,19 +14,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from appdgen.appd import appd_px, px_to_pct
-from appdgen.calibration import PARAMS, Calibration
+from appdgen.calibration import DISTORTION, Calibration
 from appdgen.crop import Crop, valid_region
 from appdgen.distortion import distort_to_pixels, undistort_pixels
 from appdgen.errors import AppdgenError
 from appdgen.sampling import PAPER_RANGES
 from appdgen.maps import Rectification, rectify
 
-#: The paper's perturbation ranges, as fractions of the reference value: Θm = Θ* × (1 + t), t uniform in the range.
 #: The two reprojection scenarios of the paper's figure: (a) synthetic and (b) physical.
 SCENARIOS: tuple[str, ...] = ("synthetic", "physical")
 
 Points = tuple[np.ndarray, np.ndarray]
-#: One sampled calibration: its fractions t (PARAMS order), Θm = Θ* × (1 + t), and Θm's valid crop.
+#: One sampled calibration: its fractions t (param_names order), Θm = Θ* × (1 + t), and Θm's valid crop.
 Draw = tuple[np.ndarray, Calibration, Crop]
 
 
@@ -41,21 +42,22 @@ def sweep_fractions(start: float, stop: float, steps: int) -> np.ndarray:
 
 
 def sweep(calib: Calibration, params: Sequence[str], fractions: np.ndarray,
-          size: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
+          size: tuple[int, int] | None = None, max_fov: float | None = None) -> dict[str, np.ndarray]:
     """APPD (% of the raw diagonal) for each non-zero parameter alone × (1 + t), per t; NaN where that is invalid."""
-    unknown = [name for name in params if name not in PARAMS]
+    unknown = [name for name in params if name not in calib.param_names]
     if unknown:
-        raise AppdgenError(f"unknown parameter(s) {', '.join(unknown)}; expected some of {', '.join(PARAMS)}")
+        raise AppdgenError(f"unknown parameter(s) {', '.join(unknown)} for lens model {calib.model}; expected some "
+                           f"of {', '.join(calib.param_names)}")
     # Parameters that are 0 are left out: multiplying them changes nothing, the curve would be flat zero.
-    reference = rectify(calib, size)
-    return {name: np.array([_perturbed_pct(reference, name, t) for t in fractions])
+    reference = rectify(calib, size, max_fov=max_fov)
+    return {name: np.array([_perturbed_pct(reference, name, t, max_fov) for t in fractions])
             for name in params if getattr(calib, name) != 0.0}
 
 
-def _perturbed_pct(reference: Rectification, name: str, t: float) -> float:
+def _perturbed_pct(reference: Rectification, name: str, t: float, max_fov: float | None) -> float:
     """APPD (% of the raw diagonal) of the reference with one parameter × (1 + t); NaN if that is invalid."""
     try:
-        other = rectify(reference.calib.perturb(**{name: t}), reference.size)
+        other = rectify(reference.calib.perturb(**{name: t}), reference.size, max_fov=max_fov)
     except AppdgenError:  # fold-over, no valid region, or a focal length pushed to ≤ 0
         return float("nan")
     return px_to_pct(appd_px(reference, other), reference.calib)
@@ -106,17 +108,26 @@ def _mean_distance(a: Points, b: Points) -> float:
 _ERRORS = {"synthetic": synthetic_error, "physical": physical_error}
 
 
+def study_ranges(calib: Calibration) -> dict[str, tuple[float, float]]:
+    """The paper's ranges (fractions) for calib's parameters; a coefficient radtan lacks gets the distortion range."""
+    distortion = PAPER_RANGES[DISTORTION[0]]  # the paper perturbs every distortion coefficient alike: ±15 %
+    return {name: PAPER_RANGES.get(name, distortion) for name in calib.param_names}
+
+
 def sample_calibrations(calib: Calibration, count: int, rng: np.random.Generator,
-                        ranges: Mapping[str, tuple[float, float]] = PAPER_RANGES) -> tuple[list[Draw], int]:
-    """`count` valid draws, t uniform in `ranges` (unitless fractions), and the number of invalid draws skipped."""
-    lo, hi = np.array([ranges.get(name, (0.0, 0.0)) for name in PARAMS]).T  # parameters not in ranges stay fixed
+                        ranges: Mapping[str, tuple[float, float]] | None = None,
+                        max_fov: float | None = None) -> tuple[list[Draw], int]:
+    """`count` valid draws, t uniform in `ranges` (unitless fractions; default study_ranges), and the invalid skipped."""
+    ranges = study_ranges(calib) if ranges is None else ranges
+    names = calib.param_names
+    lo, hi = np.array([ranges.get(name, (0.0, 0.0)) for name in names]).T  # parameters not in ranges stay fixed
     draws: list[Draw] = []
     skipped = 0
     while len(draws) < count:
         t = rng.uniform(lo, hi)
         try:
-            other = calib.perturb(**dict(zip(PARAMS, t.tolist())))
-            draws.append((t, other, valid_region(other)))
+            other = calib.perturb(**dict(zip(names, t.tolist())))
+            draws.append((t, other, valid_region(other, max_fov=max_fov)))
         except AppdgenError:  # fold-over or no valid region: not a usable calibration, draw again
             skipped += 1
             if skipped > 10 * count + 100:
@@ -127,7 +138,7 @@ def sample_calibrations(calib: Calibration, count: int, rng: np.random.Generator
 
 @dataclass(frozen=True)
 class ReprojectionStudy:
-    """Per sampled Θm: t (n × 9, PARAMS order), APPD (raw px, %), reprojection error per scenario (output px)."""
+    """Per sampled Θm: t (n × parameters, `params` order), APPD (raw px, %), reprojection error per scenario (output px)."""
 
     fractions: np.ndarray
     appd_px: np.ndarray
@@ -136,11 +147,13 @@ class ReprojectionStudy:
     skipped: int
     points: int
     size: tuple[int, int]
+    params: tuple[str, ...]
 
 
 def reprojection_study(calib: Calibration, samples: int, scenarios: Sequence[str] = SCENARIOS, seed: int = 0,
                        size: tuple[int, int] | None = None, points: int = 1000,
-                       ranges: Mapping[str, tuple[float, float]] = PAPER_RANGES) -> ReprojectionStudy:
+                       ranges: Mapping[str, tuple[float, float]] | None = None,
+                       max_fov: float | None = None) -> ReprojectionStudy:
     """APPD and reprojection error (output px at `size`) for `samples` valid Θm drawn around Θ* in `ranges`."""
     unknown = sorted(set(scenarios) - set(_ERRORS))
     if unknown:
@@ -148,9 +161,9 @@ def reprojection_study(calib: Calibration, samples: int, scenarios: Sequence[str
     if samples < 1 or points < 1:
         raise AppdgenError(f"need at least 1 sample and 1 point, got samples={samples} points={points}")
     rng = np.random.default_rng(seed)
-    reference = rectify(calib, size)
+    reference = rectify(calib, size, max_fov=max_fov)
     x, y = sample_rays(reference, points, rng)
-    draws, skipped = sample_calibrations(calib, samples, rng, ranges)
+    draws, skipped = sample_calibrations(calib, samples, rng, ranges, max_fov)
     appd = np.empty(samples)
     errors = {name: np.empty(samples) for name in scenarios}
     for i, (_, other, crop) in enumerate(draws):
@@ -159,7 +172,8 @@ def reprojection_study(calib: Calibration, samples: int, scenarios: Sequence[str
         for name in scenarios:
             errors[name][i] = _ERRORS[name](reference, rect, x, y)
     fractions = np.array([t for t, _, _ in draws])
-    return ReprojectionStudy(fractions, appd, appd * 100.0 / calib.diagonal, errors, skipped, points, reference.size)
+    return ReprojectionStudy(fractions, appd, appd * 100.0 / calib.diagonal, errors, skipped, points, reference.size,
+                             calib.param_names)
 
 
 def spearman(a: np.ndarray, b: np.ndarray) -> float:
@@ -185,13 +199,13 @@ def _ranks(values: np.ndarray) -> np.ndarray:
 
 
 def drift_matrix(calibs: Sequence[Calibration], size: tuple[int, int] | None = None,
-                 labels: Sequence[str] | None = None) -> np.ndarray:
-    """Symmetric matrix of APPD (raw px) between every pair of calibrations of one raw size, at one output size."""
+                 labels: Sequence[str] | None = None, max_fov: float | None = None) -> np.ndarray:
+    """Symmetric matrix of APPD (raw px) between every pair of calibrations of one raw size (any lens models)."""
     if len({c.size for c in calibs}) > 1:
         names = labels or [str(i) for i in range(len(calibs))]
         listed = ", ".join(f"{name} {c.width}x{c.height}" for name, c in zip(names, calibs))
         raise AppdgenError(f"calibrations differ in raw size: {listed}")
-    rects = [rectify(c, size) for c in calibs]
+    rects = [rectify(c, size, max_fov=max_fov) for c in calibs]
     matrix = np.zeros((len(rects), len(rects)))
     for i in range(len(rects)):
         for j in range(i + 1, len(rects)):

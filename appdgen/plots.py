@@ -10,10 +10,9 @@ import numpy as np
 
 from appdgen.analysis import ReprojectionStudy, spearman
 from appdgen.atomic import write_file
-from appdgen.calibration import DISTORTION, FOCAL, PARAMS
+from appdgen.calibration import FOCAL, PRINCIPAL
 from appdgen.errors import AppdgenError
 
-_STYLE = {name: "-" for name in FOCAL} | {name: ":" for name in DISTORTION} | {"cx": "--", "cy": "--"}
 _SCENARIO_TITLES = {
     "synthetic": "(a) synthetic: the reference camera's image\nrectified with the sampled calibration",
     "physical": "(b) physical: the camera drifted to the sampled calibration,\nits image rectified with the reference one",
@@ -56,15 +55,23 @@ def _palette_png(data: bytes) -> bytes:
     return output.getvalue()
 
 
+def _style(name: str) -> str:
+    """Line style of a parameter's curve: solid focal length, dashed principal point, dotted lens coefficient."""
+    return "-" if name in FOCAL else "--" if name in PRINCIPAL else ":"
+
+
 def plot_sweep(path: Path, fractions: np.ndarray, curves: Mapping[str, np.ndarray], title: str,
-               diagonal: float) -> None:
-    """APPD (% of the diagonal, and raw px) against t (%), one line per parameter; linear and log panels."""
+               diagonal: float, params: Sequence[str]) -> None:
+    """APPD (% of the diagonal, and raw px) against t (%), one line per parameter; linear and log panels.
+
+    `params` is the calibration's parameter list (``calib.param_names``): a parameter's colour is its place there.
+    """
     fig = _figure(11, 5.0)
     linear, log = fig.subplots(1, 2)
-    colours = dict(zip(PARAMS, [f"C{i}" for i in range(len(PARAMS))]))
+    colours = {name: f"C{i % 10}" for i, name in enumerate(params)}  # matplotlib's cycle has ten colours
     for name, values in curves.items():
         for ax in (linear, log):
-            ax.plot(100 * fractions, values, _STYLE[name], color=colours[name], label=name, lw=1.8)
+            ax.plot(100 * fractions, values, _style(name), color=colours[name], label=name, lw=1.8)
     log.set_yscale("log", nonpositive="mask")  # p1, p2, k3 sit orders of magnitude below cx: only log shows them
     for ax, kind in ((linear, "linear"), (log, "log")):
         ax.set_xlabel("parameter change t (%): value × (1 + t)")
@@ -74,7 +81,7 @@ def plot_sweep(path: Path, fractions: np.ndarray, curves: Mapping[str, np.ndarra
         ax.axvline(0, color="0.5", lw=0.8)
     pixels = linear.secondary_yaxis("right", functions=(lambda p: p * diagonal / 100, lambda x: x * 100 / diagonal))
     pixels.set_ylabel("APPD (raw px)")
-    fig.legend(*linear.get_legend_handles_labels(), loc="outside lower center", ncol=len(curves),
+    fig.legend(*linear.get_legend_handles_labels(), loc="outside lower center", ncol=min(len(curves), 9),
                title="parameter changed (solid: focal length, dashed: principal point, dotted: distortion)")
     fig.suptitle(title)
     _save(fig, path)
@@ -85,7 +92,7 @@ def plot_reproj(path: Path, study: ReprojectionStudy, title: str) -> None:
     names = list(study.reproj_px)
     fig = _figure(5.2 * len(names) + 0.8, 4.4)
     axes = np.atleast_1d(fig.subplots(1, len(names), squeeze=False)[0])
-    focal = 100 * study.fractions[:, PARAMS.index("fx")]
+    focal = 100 * study.fractions[:, study.params.index("fx")]
     for ax, name in zip(axes, names):
         error = study.reproj_px[name]
         dots = ax.scatter(study.appd_pct, error, c=focal, s=9, cmap="viridis", alpha=0.8)

@@ -20,6 +20,7 @@ from appdgen.analysis import (
     round_significant,
     sample_rays,
     spearman,
+    study_ranges,
     sweep,
     sweep_fractions,
     synthetic_error,
@@ -177,6 +178,49 @@ def test_round_significant():
     rounded = round_significant(KITTI_2011_09_26["02"], 3)
     assert (rounded.fx, rounded.cx, rounded.p2) == (960.0, 696.0, 0.000568)
     assert round_significant(rounded, 3) == rounded
+
+
+# --- other lens models --------------------------------------------------------------------------------------------
+
+FISHEYE = Calibration(640, 480, 200.0, 200.0, 319.5, 239.5, -0.01, 0.04, -0.04, 0.008, model="kb4")
+
+
+def test_study_ranges_are_the_papers_for_radtan_and_the_distortion_range_for_other_coefficients(kitti02):
+    assert study_ranges(kitti02) == PAPER_RANGES
+    assert study_ranges(FISHEYE) == {**{n: PAPER_RANGES[n] for n in ("fx", "fy", "cx", "cy")},
+                                     **{n: (-0.15, 0.15) for n in ("k1", "k2", "k3", "k4")}}
+
+
+def test_sweep_takes_the_models_parameter_names():
+    curves = sweep(FISHEYE, ["k4"], np.array([0.0, 0.1]), (160, 120), max_fov=120)
+    assert curves["k4"][0] == 0.0 and curves["k4"][1] > 0
+    with pytest.raises(AppdgenError, match=r"unknown parameter\(s\) p1 for lens model kb4; expected some of "
+                                           r"fx, fy, cx, cy, k1, k2, k3, k4"):
+        sweep(FISHEYE, ["p1"], np.array([0.0, 0.1]), (160, 120), max_fov=120)
+
+
+def test_reprojection_study_of_a_fisheye_perturbs_its_own_coefficients():
+    study = reprojection_study(FISHEYE, 8, seed=3, size=(160, 120), points=100, max_fov=120)
+    assert study.params == FISHEYE.param_names and study.fractions.shape == (8, 8)
+    assert (np.abs(study.fractions[:, 4:]) <= 0.15).all() and np.ptp(study.fractions[:, 7]) > 0
+    assert (study.appd_px > 0).all() and np.isfinite(study.reproj_px["synthetic"]).all()
+
+
+def test_drift_matrix_with_max_fov_bounds_every_calibration():
+    calibs = [FISHEYE, FISHEYE.perturb(k2=0.05)]
+    matrix = drift_matrix(calibs, (160, 120), max_fov=100)
+    assert matrix[0, 1] == appd_px(rectify(calibs[0], (160, 120), max_fov=100),
+                                   rectify(calibs[1], (160, 120), max_fov=100)) > 0
+
+
+def test_fisheye_sweep_plot(tmp_path):
+    pytest.importorskip("matplotlib")
+    path = tmp_path / "kb4.json"
+    save(FISHEYE, path)
+    result = run("sweep", "--calib", path, "--steps", "3", "--size", "160x120", "--max-fov", "120",
+                 "--plot", tmp_path / "kb4.png")
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "kb4.png").read_bytes()[:4] == b"\x89PNG"
 
 
 # --- command line -------------------------------------------------------------------------------------------------

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from appdgen.calibration import PARAMS, Calibration
+from appdgen.calibration import Calibration
 from appdgen.cli.base import (
     fail_cleanly,
     parse_size,
@@ -16,6 +16,7 @@ from appdgen.cli.base import (
     calib_option,
     camera_option,
     size_option,
+    max_fov_option,
     json_option,
     csv_option,
     plot_option,
@@ -32,18 +33,20 @@ from appdgen.errors import AppdgenError
 @main.command()
 @calib_option
 @camera_option
-@click.option("--params", default=",".join(PARAMS), show_default=True,
-              help="Comma-separated parameters, each swept alone.")
+@click.option("--params", default=None,
+              help="Comma-separated parameters, each swept alone  [default: fx, fy, cx, cy and every coefficient "
+                   "of the calibration's lens model]")
 @click.option("--from", "start", type=float, default=-0.2, show_default=True,
               help="First fraction t: value x (1 + t).")
 @click.option("--to", "stop", type=float, default=0.2, show_default=True, help="Last fraction t.")
 @click.option("--steps", type=int, default=101, show_default=True,
               help="Number of t values, evenly spaced, ends included.")
 @size_option
+@max_fov_option
 @csv_option
 @plot_option
 @fail_cleanly
-def sweep(calib_path, camera, params, start, stop, steps, size, csv_path, plot_path):
+def sweep(calib_path, camera, params, start, stop, steps, size, max_fov, csv_path, plot_path):
     """APPD as each parameter alone is multiplied by (1 + t), the others fixed (the paper's per-parameter figure).
 
     APPD, in % of the raw diagonal, is against the unperturbed calibration. Parameters equal to 0 are skipped
@@ -56,10 +59,11 @@ def sweep(calib_path, camera, params, start, stop, steps, size, csv_path, plot_p
 
     start_plot(plot_path)
     calib = load_calibration(calib_path, camera)
-    names = list(dict.fromkeys(n.strip() for n in params.split(",") if n.strip()))
+    names = list(calib.param_names if params is None
+                 else dict.fromkeys(n.strip() for n in params.split(",") if n.strip()))
     t = sweep_fractions(start, stop, steps)
     out_size = parse_size(size)
-    curves = sweep_appd(calib, names, t, out_size)
+    curves = sweep_appd(calib, names, t, out_size, max_fov)
     for name in names:
         if name not in curves:
             note(f"{name} skipped: it is 0 in this calibration, and multiplying 0 changes nothing")
@@ -78,7 +82,7 @@ def sweep(calib_path, camera, params, start, stop, steps, size, csv_path, plot_p
         from appdgen.plots import plot_sweep
 
         plot_sweep(Path(plot_path), t, curves, f"APPD as one parameter changes, others fixed: "
-                   f"{describe_source(calib_path, camera)} (output {w}x{h})", calib.diagonal)
+                   f"{describe_source(calib_path, camera)} (output {w}x{h})", calib.diagonal, calib.param_names)
 
 
 @main.command()
@@ -90,14 +94,16 @@ def sweep(calib_path, camera, params, start, stop, steps, size, csv_path, plot_p
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (points, then calibrations).")
 @click.option("--points", type=int, default=1000, show_default=True, help="3-D points per calibration.")
 @size_option
+@max_fov_option
 @csv_option
 @plot_option
 @fail_cleanly
-def reproj(calib_path, camera, samples, scenario, seed, points, size, csv_path, plot_path):
+def reproj(calib_path, camera, samples, scenario, seed, points, size, max_fov, csv_path, plot_path):
     """APPD against reprojection error for calibrations Θm sampled around the file's Θ* (the paper's scatter figure).
 
     Θm = Θ* x (1 + t), with t uniform per parameter in the paper's ranges: fx, fy -5..+20 %, cx, cy +-5 %,
-    k1, k2, p1, p2, k3 +-15 %; draws whose distortion folds over are skipped and counted. The 3-D points are
+    every coefficient of the lens model (k1, k2, p1, p2, k3 for radtan) +-15 %; draws whose distortion folds
+    over are skipped and counted. The 3-D points are
     seen uniformly over Θ*'s rectified view (a projection depends only on X/Z, so depth changes nothing).
     Per Θm, the reprojection error is the mean over the points of:
 
@@ -118,7 +124,7 @@ def reproj(calib_path, camera, samples, scenario, seed, points, size, csv_path, 
     start_plot(plot_path)
     calib = load_calibration(calib_path, camera)
     scenarios = SCENARIOS if scenario == "both" else (scenario,)
-    study = reprojection_study(calib, samples, scenarios, seed, parse_size(size), points)
+    study = reprojection_study(calib, samples, scenarios, seed, parse_size(size), points, max_fov=max_fov)
     source = describe_source(calib_path, camera)
     click.echo(f"{source}: {samples} calibrations sampled in the paper's ranges ({study.skipped} invalid draws "
                f"skipped), {points} points, seed {seed}, output {study.size[0]}x{study.size[1]}")
@@ -128,7 +134,7 @@ def reproj(calib_path, camera, samples, scenario, seed, points, size, csv_path, 
         click.echo(f"{name}: reprojection error {np.nanmin(error):.2f} .. {np.nanmax(error):.2f} px (median "
                    f"{np.nanmedian(error):.2f} px); Spearman rho(APPD, error) = {spearman(study.appd_pct, error):.3f}")
     if csv_path:
-        header = ["sample", *(f"t_{p}" for p in PARAMS), "appd_px", "appd_pct", *(f"reproj_{n}_px" for n in scenarios)]
+        header = ["sample", *(f"t_{p}" for p in study.params), "appd_px", "appd_pct", *(f"reproj_{n}_px" for n in scenarios)]
         write_csv(csv_path, header, ([i, *study.fractions[i].tolist(), study.appd_px[i], study.appd_pct[i],
                                       *(study.reproj_px[n][i] for n in scenarios)] for i in range(samples)))
     if plot_path:
@@ -155,7 +161,8 @@ def common_cameras(paths: Sequence[str]) -> list[str]:
     return common
 
 
-def rounding_note(labels: Sequence[str], calibs: Sequence[Calibration], size: tuple[int, int] | None) -> str | None:
+def rounding_note(labels: Sequence[str], calibs: Sequence[Calibration], size: tuple[int, int] | None,
+                  max_fov: float | None = None) -> str | None:
     """A note naming calibrations with at most 3 significant digits, with the APPD that such rounding alone gives."""
     from appdgen.analysis import round_significant
     from appdgen.appd import appd_px
@@ -168,7 +175,8 @@ def rounding_note(labels: Sequence[str], calibs: Sequence[Calibration], size: tu
     text = f"{', '.join(rounded)}: values have at most 3 significant digits, so part of their APPD is rounding"
     if full:
         label, c = full[0]
-        floor = appd_px(rectify_calibration(c, size), rectify_calibration(round_significant(c, 3), size))
+        floor = appd_px(rectify_calibration(c, size, max_fov=max_fov),
+                        rectify_calibration(round_significant(c, 3), size, max_fov=max_fov))
         text += f" (rounding {label} to 3 digits alone gives {floor:.2f} px)"
     return text
 
@@ -178,11 +186,14 @@ def rounding_note(labels: Sequence[str], calibs: Sequence[Calibration], size: tu
 @click.option("--camera", "cameras", multiple=True,
               help="Camera to compare, e.g. 02 (repeatable; default: every camera that all files have).")
 @size_option
+@max_fov_option
 @json_option
 @plot_option
 @fail_cleanly
-def drift(calib_paths, cameras, size, as_json, plot_path):
+def drift(calib_paths, cameras, size, max_fov, as_json, plot_path):
     """APPD between the same camera's calibrations in several files, e.g. KITTI's recording days.
+
+    The files may use different formats and lens models (e.g. a fisheye as kb4 in one file, ds in another).
 
     For each camera, prints the symmetric matrix of APPD between every pair of files, in raw px and in % of
     the raw diagonal. Files are labelled by their name, or by their folder's name where files share a name
@@ -192,7 +203,7 @@ def drift(calib_paths, cameras, size, as_json, plot_path):
     start_plot(plot_path)
     labels = file_labels(calib_paths)
     out_size = parse_size(size)
-    tables = {camera: drift_table(calib_paths, labels, camera, out_size)
+    tables = {camera: drift_table(calib_paths, labels, camera, out_size, max_fov)
               for camera in cameras or common_cameras(calib_paths)}
     if as_json:
         click.echo(json.dumps({"files": list(calib_paths), "labels": labels, "cameras": {
@@ -209,15 +220,16 @@ def drift(calib_paths, cameras, size, as_json, plot_path):
                    f"APPD between calibrations of the same camera (output {w}x{h}; cells: raw px and % of diagonal)")
 
 
-def drift_table(paths: Sequence[str], labels: Sequence[str], camera: str, size: tuple[int, int] | None) -> dict:
+def drift_table(paths: Sequence[str], labels: Sequence[str], camera: str, size: tuple[int, int] | None,
+                max_fov: float | None = None) -> dict:
     """One camera's APPD matrix between the files (raw px and %), its output size and diagonal, a rounding note."""
     from appdgen.analysis import drift_matrix
 
     calibs = [load_calibration(p, camera) for p in paths]
-    matrix = drift_matrix(calibs, size, labels)
+    matrix = drift_matrix(calibs, size, labels, max_fov)
     diagonal = calibs[0].diagonal
     return {"size": list(size or calibs[0].size), "diagonal_px": diagonal, "appd_px": matrix,
-            "appd_pct": matrix * 100 / diagonal, "note": rounding_note(labels, calibs, size)}
+            "appd_pct": matrix * 100 / diagonal, "note": rounding_note(labels, calibs, size, max_fov)}
 
 
 def echo_drift(camera: str, table: dict, labels: Sequence[str]) -> None:

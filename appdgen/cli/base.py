@@ -12,7 +12,7 @@ from typing import IO, Any, Callable
 import click
 
 from appdgen import __version__
-from appdgen.calibration import PARAMS, Calibration
+from appdgen.calibration import Calibration
 from appdgen.errors import AppdgenError
 
 
@@ -65,14 +65,15 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
     return w, h
 
 
-def parse_assignments(option: str, items: tuple[str, ...]) -> dict[str, float]:
-    """('fx=0.05', …) → {'fx': 0.05, …}, checking names against the nine parameters."""
+def parse_assignments(option: str, items: tuple[str, ...], calib: Calibration) -> dict[str, float]:
+    """('fx=0.05', …) → {'fx': 0.05, …}, checking names against calib's parameters (its lens model's)."""
     values: dict[str, float] = {}
     for item in items:
         name, sep, text = item.partition("=")
         name = name.strip()
-        if not sep or name not in PARAMS:
-            raise AppdgenError(f"{option} {item!r}: expected NAME=VALUE with NAME one of {', '.join(PARAMS)}")
+        if not sep or name not in calib.param_names:
+            raise AppdgenError(f"{option} {item!r}: expected NAME=VALUE with NAME one of "
+                               f"{', '.join(calib.param_names)} (lens model {calib.model})")
         try:
             values[name] = float(text)
         except ValueError:
@@ -89,23 +90,35 @@ def load_calibration(path: str, camera: str | None) -> Calibration:
 
 def modified(calib: Calibration, sets: tuple[str, ...], perturbs: tuple[str, ...]) -> Calibration:
     """Apply --set NAME=VALUE (absolute) then --perturb NAME=FRACTION (× (1 + fraction))."""
-    calib = calib.replace(**parse_assignments("--set", sets))
-    return calib.perturb(**parse_assignments("--perturb", perturbs))
+    calib = calib.replace(**parse_assignments("--set", sets, calib))
+    return calib.perturb(**parse_assignments("--perturb", perturbs, calib))
 
 
 calib_option = click.option("--calib", "calib_path", required=True, type=click.Path(dir_okay=False),
-                            help="Calibration file (KITTI, OpenCV YAML/XML, ROS, Kalibr, nuScenes, appdgen JSON).")
+                            help="Calibration file (KITTI, OpenCV YAML/XML, ROS, Kalibr, EuRoC, Basalt, nuScenes, "
+                                 "appdgen JSON), any lens model.")
 
 
 camera_option = click.option("--camera", default=None, help="Camera in the file, e.g. 02 for KITTI image_02.")
 
 
 set_option = click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
-                          help="Set a parameter to an absolute value (repeatable).")
+                          help="Set a parameter (fx, fy, cx, cy or the lens model's) to an absolute value "
+                               "(repeatable).")
 
 
 perturb_option = click.option("--perturb", "perturbs", multiple=True, metavar="NAME=FRACTION",
                               help="Multiply a parameter by (1 + FRACTION), e.g. fx=0.05 (repeatable).")
+
+
+#: Largest --max-fov accepted (degrees): the rectified image is a pinhole view, below 180° wide.
+MAX_FOV_LIMIT = 180.0
+
+max_fov_option = click.option(
+    "--max-fov", "max_fov", default=None, metavar="DEG",
+    type=click.FloatRange(0.0, MAX_FOV_LIMIT, min_open=True, max_open=True),
+    help="Bound the rectified image's horizontal field of view to DEG degrees, for the reference and every "
+         "perturbed calibration alike (default: unbounded, the largest valid crop).")
 
 
 size_option = click.option("--size", default=None, metavar="WxH",

@@ -17,6 +17,7 @@ from appdgen.cli.base import (
     set_option,
     perturb_option,
     size_option,
+    max_fov_option,
     json_option,
     main,
 )
@@ -24,8 +25,8 @@ from appdgen.errors import AppdgenError
 
 
 def _describe(calib: Calibration, new_k) -> dict:
-    """A calibration's parameters, size and output camera matrix K̂, JSON-ready."""
-    return {**calib.params(), "size": list(calib.size), "new_camera_matrix": new_k.tolist()}
+    """A calibration's lens model, its parameters, size and output camera matrix K̂, JSON-ready."""
+    return {"model": calib.model, **calib.params(), "size": list(calib.size), "new_camera_matrix": new_k.tolist()}
 
 
 @main.command()
@@ -37,10 +38,16 @@ def _describe(calib: Calibration, new_k) -> dict:
               help="Compare with this second calibration file instead of a perturbation.")
 @click.option("--against-camera", default=None, help="Camera in the --against file (default: --camera).")
 @size_option
+@max_fov_option
 @json_option
 @fail_cleanly
-def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size, as_json):
-    """APPD between a reference calibration and a perturbed (or second) one."""
+def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size, max_fov, as_json):
+    """APPD between a reference calibration and a perturbed (or second) one.
+
+    The two may use different lens models (e.g. one fisheye calibrated as kb4 and as ds): APPD compares the
+    rectification maps, whatever model made them. --set and --perturb apply to the second calibration and take
+    its model's parameter names.
+    """
     from appdgen.appd import appd_px, px_to_pct
     from appdgen.maps import rectify
 
@@ -48,9 +55,10 @@ def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size,
     other = load_calibration(against_path, against_camera or camera) if against_path else reference
     other = modified(other, sets, perturbs)
     if other.size != reference.size:
-        raise AppdgenError(f"{against_path}: raw size {other.size} differs from {calib_path}'s {reference.size}")
+        raise AppdgenError(f"{against_path}: raw size {other.width}x{other.height} differs from {calib_path}'s "
+                           f"{reference.width}x{reference.height}; APPD compares one camera's calibrations")
     out_size = parse_size(size)
-    ref_rect, other_rect = rectify(reference, out_size), rectify(other, out_size)
+    ref_rect, other_rect = rectify(reference, out_size, max_fov=max_fov), rectify(other, out_size, max_fov=max_fov)
     value = appd_px(ref_rect, other_rect)
     result = {
         "appd_px": value,
@@ -59,6 +67,8 @@ def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size,
         "reference": _describe(reference, ref_rect.new_camera_matrix),
         "perturbed": _describe(other, other_rect.new_camera_matrix),
     }
+    if max_fov is not None:
+        result["max_fov"] = max_fov
     if as_json:
         click.echo(json.dumps(result, indent=2))
     else:
@@ -72,18 +82,19 @@ def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size,
 @set_option
 @perturb_option
 @size_option
+@max_fov_option
 @click.option("--interp", default="lanczos4", type=click.Choice(["nearest", "linear", "cubic", "lanczos4"]),
               show_default=True, help="Interpolation of the remap.")
 @click.argument("image", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output image (PNG, JPG…).")
 @fail_cleanly
-def rectify(calib_path, camera, sets, perturbs, size, interp, image, output):
+def rectify(calib_path, camera, sets, perturbs, size, max_fov, interp, image, output):
     """Rectify, crop and rescale one raw image with a (perturbed) calibration."""
     from appdgen.images import read_image, write_image
     from appdgen.maps import rectify as rectify_calibration
     from appdgen.render import remap_image
 
     calib = modified(load_calibration(calib_path, camera), sets, perturbs)
-    rect = rectify_calibration(calib, parse_size(size))
+    rect = rectify_calibration(calib, parse_size(size), max_fov=max_fov)
     write_image(Path(output), remap_image(read_image(Path(image)), rect, interp))
     click.echo(f"wrote {output} ({rect.size[0]}x{rect.size[1]})")

@@ -27,9 +27,13 @@ def px_to_pct(appd: float, calib: Calibration) -> float:
     return appd * 100.0 / calib.diagonal
 
 
-def appd(reference: Calibration, perturbed: Calibration, size: tuple[int, int] | None = None) -> tuple[float, float]:
-    """(APPD in raw pixels, APPD in % of the raw diagonal) between two calibrations at an output size."""
+def appd(reference: Calibration, perturbed: Calibration, size: tuple[int, int] | None = None,
+         max_fov: float | None = None) -> tuple[float, float]:
+    """(APPD in raw pixels, APPD in % of the raw diagonal) between two calibrations at an output size.
+
+    The calibrations may use different lens models (APPD compares maps); `max_fov` (degrees) bounds both crops.
+    """
     if reference.size != perturbed.size:
         raise ValueError(f"calibrations differ in raw size: {reference.size} vs {perturbed.size}")
-    value = appd_px(rectify(reference, size), rectify(perturbed, size))
+    value = appd_px(rectify(reference, size, max_fov=max_fov), rectify(perturbed, size, max_fov=max_fov))
     return value, px_to_pct(value, reference)

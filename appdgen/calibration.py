@@ -19,6 +19,8 @@ DEFAULT_MODEL = "radtan"
 #: The radial-tangential model's coefficients and its nine parameters (OpenCV's order of K then D).
 DISTORTION: tuple[str, ...] = lens.params(DEFAULT_MODEL)
 PARAMS: tuple[str, ...] = (*INTRINSICS, *DISTORTION)
+#: Models whose coefficients come as OpenCV's distortion vector (4, 5, 8, 12 or 14 long), and the sizes they take.
+OPENCV_SIZES: dict[str, str] = {"radtan": "4 or 5", "rational": "4, 5, 8 or 12"}
 
 
 @dataclass(frozen=True, init=False)
@@ -59,6 +61,7 @@ class Calibration:
         object.__setattr__(self, "model", model)
         object.__setattr__(self, "coeffs", tuple(_finite(n, v) for n, v in zip(names, values)))
         self._validate()
+        lens.get(model).validate(self.coeffs)
 
     def _validate(self) -> None:
         """Sizes are integers > 1, intrinsics finite numbers, focal lengths positive."""
@@ -88,19 +91,24 @@ class Calibration:
     @classmethod
     def from_arrays(cls, width: int, height: int, K: np.ndarray, D: np.ndarray | None = None,
                     model: str = DEFAULT_MODEL) -> "Calibration":
-        """Build from a 3×3 camera matrix (pixels) and a model's coefficients (OpenCV's order for radtan: 4 or 5)."""
+        """Build from a 3×3 camera matrix (pixels) and a model's coefficients in order (OpenCV's vector for radtan:
+        4 or 5, for rational: 4, 5, 8 or 12; a 14-long vector with non-zero tilt is refused)."""
         K = np.asarray(K, dtype=float)
         if K.shape != (3, 3):
             raise AppdgenError(f"calibration: camera matrix must be 3x3, got shape {K.shape}")
         if abs(K[0, 1]) > 1e-9 * max(abs(K[0, 0]), 1.0):
             raise AppdgenError(f"calibration: skewed camera matrix (K[0,1]={K[0, 1]!r}) is not supported")
         d = np.zeros(0) if D is None else np.asarray(D, dtype=float).ravel()
-        if model == DEFAULT_MODEL:
+        if model in OPENCV_SIZES:
             if d.size not in (0, 4, 5, 8, 12, 14):
-                raise AppdgenError(f"calibration: expected 4 or 5 distortion coefficients, got {d.size}")
-            if d.size > 5 and np.any(d[5:] != 0):
-                raise AppdgenError("calibration: rational/thin-prism distortion (coefficients past k3) is not supported")
-            d = d[:5]
+                raise AppdgenError(f"calibration: expected {OPENCV_SIZES[model]} distortion coefficients, got {d.size}")
+            if d.size == 14 and np.any(d[12:] != 0):
+                lens.get("tilted")  # refused with the reason
+            kept = len(lens.params(model))
+            if np.any(d[kept:] != 0):
+                raise AppdgenError("calibration: rational/thin-prism distortion (coefficients past k3) needs "
+                                   "model='rational'")
+            d = d[:kept]
         return cls(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d.tolist(), model=model)
 
     @property

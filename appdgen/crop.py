@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from appdgen import lens
 from appdgen.calibration import Calibration
 from appdgen.distortion import (
     distort_to_pixels,
@@ -27,6 +28,8 @@ from appdgen.distortion import (
 from appdgen.errors import AppdgenError
 
 GRID_NODES = 1025
+#: Newton steps for the boundary curves: ~6 suffice near the axis, a fisheye's far rows take up to ~30.
+NEWTON_STEPS = 16
 _TOL = 1e-11  # normalized units: about 1e-8 output pixel
 
 
@@ -72,36 +75,43 @@ class _Graph:
         return float(-np.inf) if np.isnan(v).any() else float(v.min())
 
 
-def _solve_axis(fixed: np.ndarray, target: np.ndarray, calib: Calibration, p1: np.ndarray, p2: np.ndarray,
+def _solve_axis(fixed: np.ndarray, target: np.ndarray, rows: np.ndarray, calib: Calibration,
                 r_fold: float) -> np.ndarray:
-    """Free coordinate t with distorted t_d(t, fixed) = target, per element, inside the fold radius.
+    """Free coordinate t per element: x with m_x(t, fixed) = target where `rows`, else y with m_y(fixed, t) = target.
 
-    Solving for x along rows uses (p1, p2); solving for y along columns is the same equation with p1 and p2
-    swapped, so all four boundary curves go through one vectorized Newton loop.
+    One vectorized Newton loop on the model's projection and Jacobian solves all four boundary curves. Where no
+    root lies inside the fold radius the frame edge is never reached there, and the fold circle bounds the set.
     """
-    k1, k2, k3 = calib.k1, calib.k2, calib.k3
-    t, f2, p1f2 = target.copy(), fixed * fixed, 2.0 * p1 * fixed
+    model = lens.get(calib.model)
+    t = target.copy()
     active = np.arange(t.size)
     with np.errstate(all="ignore"):  # diverging points turn non-finite, leave the active set, and are caught below
-        for _ in range(16):
-            # From the distorted value Newton converges in ~6 steps where a root exists; iterating only on the
-            # points still moving keeps those with no root inside the fold radius from costing every step.
-            ta, fa2, pa, qa, goal = t[active], f2[active], p1f2[active], p2[active], target[active]
-            r2 = ta * ta + fa2
-            poly = k1 + r2 * (k2 + r2 * k3)
-            td = ta * (1.0 + r2 * poly) + pa * ta + qa * (r2 + 2.0 * ta * ta)
-            slope = 1.0 + r2 * poly + 2.0 * ta * ta * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)) + pa + 6.0 * qa * ta
-            step = (td - goal) / slope
+        for _ in range(NEWTON_STEPS):
+            # From the distorted value Newton converges in ~6 steps where a root exists (more far out in a
+            # fisheye); iterating only on the points still moving keeps those with no root from costing every step.
+            ta, row = t[active], rows[active]
+            x, y = _plane(ta, fixed[active], row)
+            dxx, _, _, dyy = model.jacobian(x, y, calib.coeffs)
+            step = (_along(x, y, row, model, calib) - target[active]) / np.where(row, dxx, dyy)
             t[active] = ta - step
             active = active[np.abs(step) > 1e-13]  # ~1e-10 px: converged (smaller steps are rounding jitter)
             if active.size == 0:
                 break
-    r2 = t * t + f2
-    td = t * (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) + p1f2 * t + p2 * (r2 + 2.0 * t * t)
-    missing = ~((np.abs(td - target) < 1e-12) & (r2 < r_fold * r_fold))
-    # No root inside the fold radius: the frame edge is never reached there, so the fold circle bounds the set.
-    t[missing] = np.copysign(np.sqrt(np.maximum(r_fold * r_fold - f2[missing], 0.0)), target[missing])
+        x, y = _plane(t, fixed, rows)
+        missing = ~((np.abs(_along(x, y, rows, model, calib) - target) < 1e-12) & (x * x + y * y < r_fold * r_fold))
+        t[missing] = np.copysign(np.sqrt(np.maximum(r_fold * r_fold - fixed[missing] ** 2, 0.0)), target[missing])
     return t
+
+
+def _plane(t: np.ndarray, fixed: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) of the free coordinate t and the fixed one: x = t along rows, y = t along columns."""
+    return np.where(rows, t, fixed), np.where(rows, fixed, t)
+
+
+def _along(x: np.ndarray, y: np.ndarray, rows: np.ndarray, model, calib: Calibration) -> np.ndarray:
+    """The distorted coordinate each solve matches: m_x along rows, m_y along columns."""
+    mx, my = model.project(x, y, calib.coeffs)
+    return np.where(rows, mx, my)
 
 
 def _border_pixels(calib: Calibration, samples: int) -> tuple[np.ndarray, np.ndarray]:
@@ -113,38 +123,85 @@ def _border_pixels(calib: Calibration, samples: int) -> tuple[np.ndarray, np.nda
     return u, v
 
 
+def _edges(calib: Calibration) -> list[float]:
+    """The frame's edges u = 0, u = W−1, v = 0, v = H−1 as distorted normalized coordinates."""
+    return [-calib.cx / calib.fx, (calib.width - 1 - calib.cx) / calib.fx,
+            -calib.cy / calib.fy, (calib.height - 1 - calib.cy) / calib.fy]
+
+
 def _fold_error(calib: Calibration, r_fold: float) -> AppdgenError:
-    """The error for a lens whose radial factor is not monotonic where the crop needs it."""
+    """The error for a lens that is not one-to-one where the crop needs it."""
     return AppdgenError(
-        f"distortion folds over inside the {calib.width}x{calib.height} frame (radial factor r(1+k1r²+k2r⁴+k3r⁶) "
-        f"stops growing at r={r_fold:.4g}, where the crop needs it): k1={calib.k1:g} k2={calib.k2:g} "
-        f"k3={calib.k3:g} p1={calib.p1:g} p2={calib.p2:g}"
+        f"distortion folds over inside the {calib.width}x{calib.height} frame (the {calib.model} model stops being "
+        f"one-to-one at r={r_fold:.4g}, where the crop needs it): "
+        + " ".join(f"{n}={v:g}" for n, v in zip(calib.param_names[4:], calib.coeffs))
     )
 
 
 def _frame_box(calib: Calibration, r_fold: float) -> tuple[float, float, float, float]:
-    """A box (x0, x1, y0, y1), normalized, holding the undistorted frame border within the fold radius."""
+    """A box (x0, x1, y0, y1), normalized, holding the valid rectangles: the frame border's, or the axes' extent."""
     x, y = undistort_pixels(*_border_pixels(calib, 17), calib, iterations=12, on_failure="nan")
     ok = np.isfinite(x) & (np.hypot(x, y) < r_fold)
-    if not ok.all():
+    if not ok.all() and np.isfinite(r_fold):
         # Part of the border lies beyond the fold: the fold circle then bounds the valid set there.
         return (-r_fold, r_fold, -r_fold, r_fold)
+    if not ok.all():
+        # Part of the border is past 90° off-axis (or where Newton fails) and nothing folds: a rectangle around the
+        # principal point is then bounded by where the axes through it leave the frame (±inf: they never do).
+        left, right, top, bottom = _solve_axis(np.zeros(4), np.array(_edges(calib)),
+                                               np.array([True, True, False, False]), calib, r_fold)
+        return (left, right, top, bottom)
     # A 2 % margin covers the border's bulge between the 17 samples a side.
     pad_x, pad_y = 0.02 * (x.max() - x.min()), 0.02 * (y.max() - y.min())
     return (max(x.min() - pad_x, -r_fold), min(x.max() + pad_x, r_fold),
             max(y.min() - pad_y, -r_fold), min(y.max() + pad_y, r_fold))
 
 
-def _graphs(calib: Calibration, r_fold: float, nodes: int) -> tuple[_Graph, _Graph, _Graph, _Graph]:
-    """The four boundary graphs L(y), R(y), T(x), B(x) on `nodes` nodes over the frame's undistorted box."""
+def _bounded_box(calib: Calibration, r_fold: float, max_fov: float | None) -> tuple[float, float, float, float]:
+    """_frame_box cut to the max_fov box (fov_box); AppdgenError when the valid set is unbounded along an axis."""
     x0, x1, y0, y1 = _frame_box(calib, r_fold)
+    if max_fov is not None:
+        half_x, half_y = fov_box(calib, max_fov)
+        x0, x1, y0, y1 = max(x0, -half_x), min(x1, half_x), max(y0, -half_y), min(y1, half_y)
+    if not np.isfinite([x0, x1]).all():
+        raise AppdgenError(
+            f"the {calib.model} lens sees 180° or more across the {calib.width}x{calib.height} frame horizontally, so "
+            "the largest rectangle of the undistorted plane is unbounded: bound the view with --max-fov DEG, "
+            "e.g. --max-fov 120")
+    if not np.isfinite([y0, y1]).all():
+        raise AppdgenError(
+            f"the {calib.model} lens sees 180° or more across the {calib.width}x{calib.height} frame vertically, so "
+            "the largest rectangle of the undistorted plane is unbounded: bound the view with --max-fov DEG, "
+            "e.g. --max-fov 120")
+    return x0, x1, y0, y1
+
+
+def fov_box(calib: Calibration, max_fov: float) -> tuple[float, float]:
+    """Half-width tan(max_fov/2) and half-height (the same over the raw aspect) of the max_fov box, normalized."""
+    # Bounding x alone left a fisheye's vertical room lopsided (tan grows fast towards 90°): the T265's rectangle,
+    # centred in it, looked 60° down. The raw-aspect box around the principal point keeps the view ahead.
+    if not 0.0 < max_fov < 180.0:
+        raise AppdgenError(f"--max-fov must be between 0 and 180 degrees (exclusive), got {max_fov:g}")
+    half = float(np.tan(np.radians(max_fov) / 2.0))
+    return half, half / _aspect(calib)
+
+
+def _aspect(calib: Calibration) -> float:
+    """Width over height of a raw-aspect rectangle in normalized units (square output pixels ↔ raw pixels)."""
+    return (calib.width / calib.height) * (calib.fy / calib.fx)
+
+
+def _graphs(calib: Calibration, r_fold: float, nodes: int,
+            max_fov: float | None) -> tuple[_Graph, _Graph, _Graph, _Graph]:
+    """The four boundary graphs L(y), R(y), T(x), B(x) on `nodes` nodes over the box holding valid rectangles."""
+    x0, x1, y0, y1 = _bounded_box(calib, r_fold, max_fov)
     ys, xs = np.linspace(y0, y1, nodes), np.linspace(x0, x1, nodes)
-    edges = [-calib.cx / calib.fx, (calib.width - 1 - calib.cx) / calib.fx,
-             -calib.cy / calib.fy, (calib.height - 1 - calib.cy) / calib.fy]
-    p1, p2 = np.full(2 * nodes, calib.p1), np.full(2 * nodes, calib.p2)
-    curves = _solve_axis(np.concatenate([ys, ys, xs, xs]), np.repeat(edges, nodes), calib,
-                         np.concatenate([p1, p2]), np.concatenate([p2, p1]), r_fold)
+    rows = np.repeat([True, True, False, False], nodes)
+    curves = _solve_axis(np.concatenate([ys, ys, xs, xs]), np.repeat(_edges(calib), nodes), rows, calib, r_fold)
     left, right, top, bottom = curves.reshape(4, nodes)
+    # Rectangles stay in the box: it bounds the curves where the frame edge is out of reach (or past max_fov).
+    left, right = np.maximum(left, x0), np.minimum(right, x1)
+    top, bottom = np.maximum(top, y0), np.minimum(bottom, y1)
     return _Graph(ys, left), _Graph(ys, right), _Graph(xs, top), _Graph(xs, bottom)
 
 
@@ -168,15 +225,18 @@ def _centre(s: float, aspect: float, g: tuple[_Graph, ...], xc: float, yc: float
     return xc, yc, min((hi_x - lo_x) / aspect, hi_y - lo_y) - s
 
 
-def valid_region(calib: Calibration, nodes: int = GRID_NODES, check: bool = True) -> Crop:
+def valid_region(calib: Calibration, nodes: int = GRID_NODES, check: bool = True,
+                 max_fov: float | None = None) -> Crop:
     """The largest valid rectangle of raw aspect W:H (in pixels), centred where it can slide; normalized units.
 
     `nodes` sets the boundary grids' resolution (257 errs by ~1e-4 px); `check=False` skips the final guard
-    (monotone lens over R, R inside the frame), for searches that check their final answer.
+    (monotone lens over R, R inside the frame), for searches that check their final answer. `max_fov` (degrees,
+    None = unbounded) keeps R within that horizontal field of view: inside the raw-aspect box |x| ≤ tan(max_fov/2)
+    around the principal point (see fov_box).
     """
     r_fold = radial_fold_radius(calib)
-    g = _graphs(calib, r_fold, nodes)
-    aspect = (calib.width / calib.height) * (calib.fy / calib.fx)
+    g = _graphs(calib, r_fold, nodes, max_fov)
+    aspect = _aspect(calib)
     # Start from a small rectangle around the principal point and grow s to the root of "spare room = 0".
     s = 0.25 * min(g[0].t[-1] - g[0].t[0], (g[2].t[-1] - g[2].t[0]) / aspect)
     for _ in range(30):

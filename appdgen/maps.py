@@ -26,16 +26,22 @@ class Rectification:
         return (self.map_x.shape[1], self.map_x.shape[0])
 
 
-def rectify(calib: Calibration, size: tuple[int, int] | None = None, crop: Crop | None = None) -> Rectification:
-    """Crop R, K̂ and maps M̂ at an output size (default: raw size), computed at that size, never resized."""
+def rectify(calib: Calibration, size: tuple[int, int] | None = None, crop: Crop | None = None,
+            max_fov: float | None = None) -> Rectification:
+    """Crop R, K̂ and maps M̂ at an output size (default: raw size), computed at that size, never resized.
+
+    `max_fov` (degrees, None = unbounded) bounds R's horizontal field of view (crop.valid_region); a given `crop`
+    is used as it is.
+    """
     size = check_output_size(calib, size or calib.size)
-    crop = crop or valid_region(calib)
+    crop = crop or valid_region(calib, max_fov=max_fov)
     new_k = crop.camera_matrix(size)
     map_x, map_y = lens.get(calib.model).maps(calib.K, calib.coeffs, new_k, size)
     return Rectification(calib, crop, new_k, map_x, map_y)
 
 
-def rectification_maps(calib: Calibration, size: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def rectification_maps(calib: Calibration, size: tuple[int, int] | None = None,
+                       max_fov: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(map_x, map_y): float32 raw-pixel positions of M̂ at the output size (default: raw size)."""
-    rect = rectify(calib, size)
+    rect = rectify(calib, size, max_fov=max_fov)
     return rect.map_x, rect.map_y

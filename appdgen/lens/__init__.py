@@ -9,7 +9,16 @@ A model module defines
 * ``jacobian(x, y, coeffs)``: (∂m_x/∂x, ∂m_x/∂y, ∂m_y/∂x, ∂m_y/∂y) of ``project``;
 * ``fold_radius(coeffs)``: the undistorted normalized radius below which ``project`` is one-to-one (inf when
   none is found), the model's valid domain;
-* ``maps(K, coeffs, new_K, size)``: float32 rectification maps (raw pixel positions per output pixel).
+* ``maps(K, coeffs, new_K, size)``: float32 rectification maps (raw pixel positions per output pixel);
+* ``unproject_rays(mx, my, coeffs)``: distorted normalized coordinates → unit rays (X, Y, Z), which may point
+  past 90° for fisheye models; NaN where the model has no valid preimage;
+* ``plane_guess(mx, my, coeffs)``: a starting point in the undistorted plane for Newton's inverse (NaN where the
+  ray is at or past 90°, so not in the plane);
+* ``validate(coeffs)``: AppdgenError when the coefficients are not a camera of this model.
+
+The undistorted normalized plane only holds rays under 90° off-axis; a model that sees further is still described
+there, and its ``fold_radius`` is inf when it is one-to-one up to 90°. Helpers shared by the models live in
+``appdgen.lens.numerics``.
 
 Modules take plain tuples of floats and never import the calibration type (which imports this registry).
 """
@@ -21,13 +30,20 @@ from types import ModuleType
 from appdgen.errors import AppdgenError
 
 #: Supported model names → their module (under appdgen.lens). Adding a model = one module + one entry here.
-MODELS: dict[str, str] = {"radtan": "radtan"}
+MODELS: dict[str, str] = {"radtan": "radtan", "rational": "rational", "kb4": "kb4", "ds": "ds", "eucm": "eucm"}
+#: Models met in calibration files that appdgen refuses, with why (readers pass these names to get()).
+UNSUPPORTED: dict[str, str] = {
+    "tilted": "OpenCV's tilted-sensor model (14 coefficients, taux/tauy) is not a pinhole behind the lens",
+    "omni": "Kalibr's omni (Mei's unified model with radial-tangential distortion) is not implemented",
+    "fov": "the FOV (Devernay–Faugeras arctan) distortion model is not implemented",
+}
 
 
 def get(name: str) -> ModuleType:
     """The module implementing lens model `name`; AppdgenError naming the supported ones otherwise."""
     if name not in MODELS:
-        raise AppdgenError(f"lens model {name!r} is not supported; supported: {', '.join(MODELS)}")
+        why = f"{UNSUPPORTED[name]}; " if name in UNSUPPORTED else ""
+        raise AppdgenError(f"lens model {name!r} is not supported: {why}supported: {', '.join(MODELS)}")
     return importlib.import_module(f"appdgen.lens.{MODELS[name]}")
 
 

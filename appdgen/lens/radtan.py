@@ -6,6 +6,8 @@ import functools
 import cv2
 import numpy as np
 
+from appdgen.lens.numerics import first_nonpositive, plane_rays
+
 NAME = "radtan"
 PARAMS: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3")
 #: Largest undistorted normalized radius searched for a fold (≈ 84° off-axis).
@@ -45,23 +47,25 @@ def fold_radius(coeffs: tuple[float, ...]) -> float:
 @functools.lru_cache(maxsize=256)
 def _fold_radius(k1: float, k2: float, k3: float, r_max: float) -> float:
     """fold_radius of the radial coefficients (cached: the crop and the inverse both ask, per sample)."""
-    # d/dr [r (1 + k1 r² + k2 r⁴ + k3 r⁶)] = 1 + 3 k1 q + 5 k2 q² + 7 k3 q³ with q = r². Scan, then bisect in
-    # plain floats: LAPACK's root finder (np.roots) differed in the last bit between processes with different
-    # BLAS threading, and that bit reached the crop.
+    # d/dr [r (1 + k1 r² + k2 r⁴ + k3 r⁶)] = 1 + 3 k1 q + 5 k2 q² + 7 k3 q³ with q = r².
     def slope(q):
         return 1.0 + q * (3.0 * k1 + q * (5.0 * k2 + q * 7.0 * k3))
 
-    grid = np.linspace(0.0, r_max * r_max, 4097)
-    negative = np.nonzero(slope(grid) <= 0)[0]
-    if negative.size == 0:
-        return float("inf")
-    lo, hi = float(grid[negative[0] - 1]), float(grid[negative[0]])
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if mid in (lo, hi):
-            break
-        lo, hi = (mid, hi) if slope(mid) > 0 else (lo, mid)
-    return float(np.sqrt(lo))
+    return float(np.sqrt(first_nonpositive(slope, r_max * r_max)))
+
+
+def validate(coeffs: tuple[float, ...]) -> None:
+    """Any finite coefficients are a radial-tangential lens."""
+
+
+def plane_guess(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Newton's start for the inverse: the distorted point itself (exact without distortion)."""
+    return mx.copy(), my.copy()
+
+
+def unproject_rays(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, ...]:
+    """Distorted normalized coordinates → unit rays (X, Y, Z), by Newton in the plane; NaN where not invertible."""
+    return plane_rays(project, jacobian, fold_radius(coeffs), coeffs, mx, my)
 
 
 def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

@@ -22,6 +22,7 @@ from appdgen.calibration import Calibration
 from appdgen.distortion import (
     distort_to_pixels,
     distortion_jacobian,
+    pixel_rays,
     radial_fold_radius,
     undistort_pixels,
 )
@@ -138,16 +139,22 @@ def _fold_error(calib: Calibration, r_fold: float) -> AppdgenError:
     )
 
 
-def _frame_box(calib: Calibration, r_fold: float) -> tuple[float, float, float, float]:
-    """A box (x0, x1, y0, y1), normalized, holding the valid rectangles: the frame border's, or the axes' extent."""
+def _frame_box(calib: Calibration, r_fold: float, bounded: bool) -> tuple[float, float, float, float]:
+    """A box (x0, x1, y0, y1), normalized, holding the valid rectangles: the frame border's, or the axes' extent.
+
+    `bounded`: a max_fov box will cut the result, so a lens that sees past 90° is no error here.
+    """
     x, y = undistort_pixels(*_border_pixels(calib, 17), calib, iterations=12, on_failure="nan")
     ok = np.isfinite(x) & (np.hypot(x, y) < r_fold)
     if not ok.all() and np.isfinite(r_fold):
         # Part of the border lies beyond the fold: the fold circle then bounds the valid set there.
         return (-r_fold, r_fold, -r_fold, r_fold)
     if not ok.all():
-        # Part of the border is past 90° off-axis (or where Newton fails) and nothing folds: a rectangle around the
-        # principal point is then bounded by where the axes through it leave the frame (±inf: they never do).
+        # Nothing folds, yet part of the border does not undistort (the kodak file's tangential terms fold its
+        # corners; a fisheye's corners may be past 90°): a rectangle around the principal point is then bounded
+        # by where the axes through it leave the frame.
+        if not bounded:
+            _refuse_unbounded(calib)
         left, right, top, bottom = _solve_axis(np.zeros(4), np.array(_edges(calib)),
                                                np.array([True, True, False, False]), calib, r_fold)
         return (left, right, top, bottom)
@@ -157,22 +164,30 @@ def _frame_box(calib: Calibration, r_fold: float) -> tuple[float, float, float, 
             max(y.min() - pad_y, -r_fold), min(y.max() + pad_y, r_fold))
 
 
+def _refuse_unbounded(calib: Calibration) -> None:
+    """AppdgenError when some frame pixel sees 90° or more off-axis: the valid set then holds unbounded sectors."""
+    # Directions at 90° that land inside the frame are the limit of points ever further out in the plane, so
+    # arbitrarily large rectangles fit around them and "the largest rectangle" does not exist.
+    u, v = _border_pixels(calib, 257)
+    _, _, z = pixel_rays(u, v, calib)
+    past = np.flatnonzero(z <= 0)
+    if past.size:
+        i = past[np.argmin(z[past])]
+        raise AppdgenError(
+            f"the {calib.model} lens sees {np.degrees(np.arccos(z[i])):.0f}° off-axis inside its {calib.width}x"
+            f"{calib.height} frame (raw pixel ({u[i]:.0f}, {v[i]:.0f})), so its valid region is unbounded: bound "
+            "the view with --max-fov DEG, e.g. --max-fov 120")
+
+
 def _bounded_box(calib: Calibration, r_fold: float, max_fov: float | None) -> tuple[float, float, float, float]:
-    """_frame_box cut to the max_fov box (fov_box); AppdgenError when the valid set is unbounded along an axis."""
-    x0, x1, y0, y1 = _frame_box(calib, r_fold)
+    """_frame_box cut to the max_fov box (fov_box); AppdgenError if it is still unbounded."""
+    x0, x1, y0, y1 = _frame_box(calib, r_fold, max_fov is not None)
     if max_fov is not None:
         half_x, half_y = fov_box(calib, max_fov)
         x0, x1, y0, y1 = max(x0, -half_x), min(x1, half_x), max(y0, -half_y), min(y1, half_y)
-    if not np.isfinite([x0, x1]).all():
-        raise AppdgenError(
-            f"the {calib.model} lens sees 180° or more across the {calib.width}x{calib.height} frame horizontally, so "
-            "the largest rectangle of the undistorted plane is unbounded: bound the view with --max-fov DEG, "
-            "e.g. --max-fov 120")
-    if not np.isfinite([y0, y1]).all():
-        raise AppdgenError(
-            f"the {calib.model} lens sees 180° or more across the {calib.width}x{calib.height} frame vertically, so "
-            "the largest rectangle of the undistorted plane is unbounded: bound the view with --max-fov DEG, "
-            "e.g. --max-fov 120")
+    if not np.isfinite([x0, x1, y0, y1]).all():
+        raise AppdgenError(f"the frame's axes never leave the {calib.model} lens's valid region, so it is unbounded: "
+                           "bound the view with --max-fov DEG, e.g. --max-fov 120")
     return x0, x1, y0, y1
 
 

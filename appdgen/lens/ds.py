@@ -53,7 +53,11 @@ def fold_angle(coeffs: tuple[float, ...]) -> float:
         dden = -alpha * xi * sin / d2 - (1.0 - alpha) * sin
         return angle_slope(sin, cos, den, dden)
 
-    return first_nonpositive(slope, np.pi)
+    # The paper's projection domain z > −w2·d1 (eq. 43–45) can end before ρ peaks, or (for strongly negative ξ)
+    # after: the model is valid up to whichever comes first.
+    w1 = alpha / (1.0 - alpha) if alpha <= 0.5 else (1.0 - alpha) / alpha
+    w2 = (w1 + xi) / np.sqrt(2.0 * w1 * xi + xi * xi + 1.0)
+    return min(first_nonpositive(slope, np.pi), float(np.arccos(np.clip(-w2, -1.0, 1.0))))
 
 
 def fold_radius(coeffs: tuple[float, ...]) -> float:

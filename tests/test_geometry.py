@@ -201,3 +201,155 @@ def test_output_size_must_keep_the_raw_aspect(kitti02):
         check_output_size(kitti02, (700, 300))
     with pytest.raises(AppdgenError, match="positive"):
         check_output_size(kitti02, (0, 0))
+
+
+# --- every lens model: crop validity and maximality by brute force, APPD from independent projections -----------
+
+from test_lens import CAMERAS, TUMVI, reference_pixels  # noqa: E402  (OpenCV / the papers' equations)
+
+from appdgen import formats  # noqa: E402
+from appdgen.crop import fov_box  # noqa: E402
+from appdgen.distortion import radial_fold_radius  # noqa: E402
+
+MODEL_CASES = {**{name: (calib, None) for name, calib in CAMERAS.items() if name != "kb4"},
+               "kb4-narrow": (TUMVI.replace(fx=2 * TUMVI.fx, fy=2 * TUMVI.fy), None), "kb4-tumvi-120": (TUMVI, 120.0)}
+
+
+def reference_plane_pixels(x: np.ndarray, y: np.ndarray, calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted normalized points → raw pixels by the independent reference projection."""
+    px = reference_pixels(np.stack([x.ravel(), y.ravel(), np.ones(x.size)], 1), calib)
+    return px[:, 0].reshape(x.shape), px[:, 1].reshape(x.shape)
+
+
+def valid_grid(calib: Calibration, xs: np.ndarray, ys: np.ndarray, max_fov: float | None) -> np.ndarray:
+    """Brute-force validity on a grid: inside the frame, unfolded (positive Jacobian), in the model's plane domain."""
+    gx, gy = np.meshgrid(xs, ys)
+    u, v = reference_plane_pixels(gx, gy, calib)
+    ux, vy = np.gradient(u, xs, axis=1), np.gradient(v, ys, axis=0)
+    det = ux * vy - np.gradient(u, ys, axis=0) * np.gradient(v, xs, axis=1)
+    ok = (u >= 0) & (u <= calib.width - 1) & (v >= 0) & (v <= calib.height - 1) & (ux > 0) & (vy > 0) & (det > 0)
+    ok &= np.hypot(gx, gy) < radial_fold_radius(calib)
+    if max_fov is not None:
+        half_x, half_y = fov_box(calib, max_fov)
+        ok &= (np.abs(gx) <= half_x) & (np.abs(gy) <= half_y)
+    return ok
+
+
+def fits_somewhere(ok: np.ndarray, cells_x: int, cells_y: int) -> bool:
+    """Whether an all-valid block of cells_y × cells_x grid nodes exists (summed-area table)."""
+    bad = np.pad(np.cumsum(np.cumsum(~ok, 0), 1), ((1, 0), (1, 0)))
+    count = bad[cells_y:, cells_x:] - bad[:-cells_y, cells_x:] - bad[cells_y:, :-cells_x] + bad[:-cells_y, :-cells_x]
+    return bool((count == 0).any())
+
+
+def check_crop(calib: Calibration, max_fov: float | None) -> None:
+    """valid_region's crop: border inside the frame to 0.001 px, unfolded, and maximal against brute force."""
+    crop = valid_region(calib, max_fov=max_fov)
+    u, v = reference_plane_pixels(*edge_points(crop, 4001), calib)
+    assert u.min() >= -1e-3 and v.min() >= -1e-3
+    assert u.max() <= calib.width - 1 + 1e-3 and v.max() <= calib.height - 1 + 1e-3
+    if max_fov is not None:
+        half_x, half_y = fov_box(calib, max_fov)
+        assert max(-crop.x0, crop.x1) <= half_x * (1 + 1e-12) and max(-crop.y0, crop.y1) <= half_y * (1 + 1e-12)
+    w, s = crop.x1 - crop.x0, crop.y1 - crop.y0
+    step = s / 300
+    xs = np.arange(crop.x0 - 0.25 * w, crop.x1 + 0.25 * w, step)
+    ys = np.arange(crop.y0 - 0.25 * s, crop.y1 + 0.25 * s, step)
+    ok = valid_grid(calib, xs, ys, max_fov)
+    # Our rectangle (less the grid's resolution) is found, unfolded; nothing 1 % larger fits anywhere near.
+    inner = (xs > crop.x0 + step) & (xs < crop.x1 - step), (ys > crop.y0 + step) & (ys < crop.y1 - step)
+    assert ok[np.ix_(inner[1], inner[0])].all()
+    assert fits_somewhere(ok, int(w / step) - 2, int(s / step) - 2)
+    assert not fits_somewhere(ok, int(1.01 * w / step) + 1, int(1.01 * s / step) + 1)
+
+
+@pytest.mark.parametrize("name", sorted(MODEL_CASES))
+def test_crop_is_valid_and_maximal_for_every_model(name):
+    check_crop(*MODEL_CASES[name])
+
+
+def real_cameras(shared) -> list[tuple[str, Calibration]]:
+    """Every camera of every calibration file in ../shared/data/formats."""
+    found = []
+    for path in sorted((shared / "formats").glob("*")):
+        if path.suffix in (".yaml", ".yml", ".json", ".xml", ".txt"):
+            found += [(f"{path.name}:{c}", formats.load(path, c)) for c in formats.list_cameras(path)]
+    return found
+
+
+def test_real_files_get_valid_maximal_crops(shared):
+    cameras = real_cameras(shared)
+    assert len(cameras) >= 10
+    for name, calib in cameras:
+        try:
+            max_fov = None
+            valid_region(calib)
+        except AppdgenError as error:  # fisheyes that see past 90° inside the frame: TUM VI, T265
+            assert "--max-fov" in str(error) and calib.model == "kb4", (name, error)
+            max_fov = 120.0
+        check_crop(calib, max_fov)
+
+
+def test_kodak_wide_angle_gets_a_crop_past_its_folded_corners(shared):
+    calib = formats.load(shared / "formats" / "ros_camera_info_kodak.yaml")
+    crop = valid_region(calib)
+    assert crop.x1 - crop.x0 > 3.5  # about 125° across
+
+
+def test_fisheye_past_90_degrees_needs_max_fov():
+    with pytest.raises(AppdgenError, match=r"^the kb4 lens sees 115° off-axis inside its 512x512 frame .*--max-fov"):
+        valid_region(TUMVI)
+    crop = valid_region(TUMVI, max_fov=120.0)
+    half_x, half_y = fov_box(TUMVI, 120.0)
+    assert crop.x1 == pytest.approx(half_x) and crop.x0 == pytest.approx(-half_x)
+    assert half_x == pytest.approx(np.tan(np.radians(60)))
+    with pytest.raises(AppdgenError, match="between 0 and 180"):
+        valid_region(TUMVI, max_fov=180.0)
+
+
+def independent_appd(a, b) -> float:
+    """Mean raw-pixel distance of two rectifications' maps rebuilt from their K̂ by the reference projections."""
+    maps = []
+    for rect in (a, b):
+        K, (w, h) = rect.new_camera_matrix, rect.size
+        gx, gy = np.meshgrid((np.arange(w) - K[0, 2]) / K[0, 0], (np.arange(h) - K[1, 2]) / K[1, 1])
+        maps.append(reference_plane_pixels(gx, gy, rect.calib))
+    return float(np.hypot(maps[0][0] - maps[1][0], maps[0][1] - maps[1][1]).mean())
+
+
+@pytest.mark.parametrize("name", sorted(MODEL_CASES))
+def test_appd_matches_independent_projections_for_every_model(name):
+    calib, max_fov = MODEL_CASES[name]
+    other = calib.perturb(fx=0.02, cy=-0.01, **{calib.param_names[4]: 0.1})
+    size = (calib.width // 4, calib.height // 4)
+    a, b = rectify(calib, size, max_fov=max_fov), rectify(other, size, max_fov=max_fov)
+    assert appd_px(a, b) == pytest.approx(independent_appd(a, b), abs=1e-3)
+    assert appd(calib, calib, size, max_fov) == (0.0, 0.0)
+    assert appd(calib, other, size, max_fov)[0] == appd(other, calib, size, max_fov)[0] > 0
+
+
+def fit_ds(calib: Calibration, max_angle_deg: float = 75.0) -> Calibration:
+    """A double sphere fitted to calib's projections by Gauss–Newton (numeric Jacobian) on rays up to max_angle."""
+    rng = np.random.default_rng(0)
+    theta, phi = np.radians(rng.uniform(0, max_angle_deg, 2000)), rng.uniform(0, 2 * np.pi, 2000)
+    rays = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    target = reference_pixels(rays, calib).ravel()
+
+    def residual(p):
+        ds = Calibration(*calib.size, *p[:4], model="ds", xi=p[4], alpha=p[5])
+        return reference_pixels(rays, ds).ravel() - target
+
+    p = np.array([calib.fx * 0.8, calib.fy * 0.8, calib.cx, calib.cy, -0.2, 0.6])
+    for _ in range(30):
+        r = residual(p)
+        J = np.column_stack([(residual(p + d) - r) / 1e-7 for d in np.eye(6) * 1e-7])
+        p = p - np.linalg.lstsq(J, r, rcond=None)[0]
+    return Calibration(*calib.size, *p[:4], model="ds", xi=p[4], alpha=p[5])
+
+
+def test_cross_model_appd_of_one_fisheye_is_small():
+    ds = fit_ds(TUMVI)
+    px, pct = appd(TUMVI, ds, (256, 256), max_fov=120.0)
+    assert pct < 0.05  # the same lens in two models: a small fraction of a pixel
+    # ... while a 1 % focal change of the same camera is far larger.
+    assert appd(TUMVI, TUMVI.perturb(fx=0.01), (256, 256), max_fov=120.0)[1] > 10 * pct

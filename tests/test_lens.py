@@ -260,3 +260,10 @@ def test_out_of_domain_coefficients_are_refused(model, coeffs, message):
 def test_first_nonpositive_finds_the_crossing():
     assert numerics.first_nonpositive(lambda t: 1.0 - t, 4.0) == pytest.approx(1.0, abs=1e-15)
     assert numerics.first_nonpositive(lambda t: 1.0 + t, 4.0) == np.inf
+
+
+def test_kb4_maps_match_opencv_fisheye_maps():
+    new_K = np.array([[120.0, 0, 255.5], [0, 120.0, 255.5], [0, 0, 1]])
+    mine = lens.get("kb4").maps(TUMVI.K, TUMVI.coeffs, new_K, (512, 512))
+    cv = cv2.fisheye.initUndistortRectifyMap(TUMVI.K, TUMVI.D, np.eye(3), new_K, (512, 512), cv2.CV_32FC1)
+    assert np.abs(mine[0] - cv[0]).max() < 1e-3 and np.abs(mine[1] - cv[1]).max() < 1e-3

@@ -117,7 +117,7 @@ def study_ranges(calib: Calibration) -> dict[str, tuple[float, float]]:
 def sample_calibrations(calib: Calibration, count: int, rng: np.random.Generator,
                         ranges: Mapping[str, tuple[float, float]] | None = None,
                         max_fov: float | None = None) -> tuple[list[Draw], int]:
-    """`count` valid draws, t uniform in `ranges` (unitless fractions; default study_ranges), and the invalid skipped."""
+    """`count` valid draws, t uniform in `ranges` (fractions; default study_ranges), and the invalid ones skipped."""
     ranges = study_ranges(calib) if ranges is None else ranges
     names = calib.param_names
     lo, hi = np.array([ranges.get(name, (0.0, 0.0)) for name in names]).T  # parameters not in ranges stay fixed
@@ -138,7 +138,7 @@ def sample_calibrations(calib: Calibration, count: int, rng: np.random.Generator
 
 @dataclass(frozen=True)
 class ReprojectionStudy:
-    """Per sampled Θm: t (n × parameters, `params` order), APPD (raw px, %), reprojection error per scenario (output px)."""
+    """Per sampled Θm: t (`params` order), APPD (raw px, %), reprojection error per scenario (output px)."""
 
     fractions: np.ndarray
     appd_px: np.ndarray

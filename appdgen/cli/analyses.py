@@ -134,7 +134,8 @@ def reproj(calib_path, camera, samples, scenario, seed, points, size, max_fov, c
         click.echo(f"{name}: reprojection error {np.nanmin(error):.2f} .. {np.nanmax(error):.2f} px (median "
                    f"{np.nanmedian(error):.2f} px); Spearman rho(APPD, error) = {spearman(study.appd_pct, error):.3f}")
     if csv_path:
-        header = ["sample", *(f"t_{p}" for p in study.params), "appd_px", "appd_pct", *(f"reproj_{n}_px" for n in scenarios)]
+        header = ["sample", *(f"t_{p}" for p in study.params), "appd_px", "appd_pct",
+                  *(f"reproj_{n}_px" for n in scenarios)]
         write_csv(csv_path, header, ([i, *study.fractions[i].tolist(), study.appd_px[i], study.appd_pct[i],
                                       *(study.reproj_px[n][i] for n in scenarios)] for i in range(samples)))
     if plot_path:

@@ -80,39 +80,52 @@ def _solve_axis(fixed: np.ndarray, target: np.ndarray, rows: np.ndarray, calib: 
                 r_fold: float) -> np.ndarray:
     """Free coordinate t per element: x with m_x(t, fixed) = target where `rows`, else y with m_y(fixed, t) = target.
 
-    One vectorized Newton loop on the model's projection and Jacobian solves all four boundary curves. Where no
+    One vectorized Newton loop on the model's projection along one axis solves all four boundary curves. Where no
     root lies inside the fold radius the frame edge is never reached there, and the fold circle bounds the set.
     """
-    model = lens.get(calib.model)
+    along, coeffs = _axis_projection(lens.get(calib.model)), calib.coeffs
     t = target.copy()
-    active = np.arange(t.size)
+    # The points still moving, packed: (their index, t, fixed, rows, target).
+    index, ta, fa, ra, ga = np.arange(t.size), t.copy(), fixed, rows, target
     with np.errstate(all="ignore"):  # diverging points turn non-finite, leave the active set, and are caught below
         for _ in range(NEWTON_STEPS):
             # From the distorted value Newton converges in ~6 steps where a root exists (more far out in a
             # fisheye); iterating only on the points still moving keeps those with no root from costing every step.
-            ta, row = t[active], rows[active]
-            x, y = _plane(ta, fixed[active], row)
-            dxx, _, _, dyy = model.jacobian(x, y, calib.coeffs)
-            step = (_along(x, y, row, model, calib) - target[active]) / np.where(row, dxx, dyy)
-            t[active] = ta - step
-            active = active[np.abs(step) > 1e-13]  # ~1e-10 px: converged (smaller steps are rounding jitter)
-            if active.size == 0:
-                break
-        x, y = _plane(t, fixed, rows)
-        missing = ~((np.abs(_along(x, y, rows, model, calib) - target) < 1e-12) & (x * x + y * y < r_fold * r_fold))
+            m, slope = along(ta, fa, ra, coeffs)
+            step = m - ga
+            step /= slope
+            ta = ta - step
+            moving = np.abs(step) > 1e-13  # ~1e-10 px: converged (smaller steps are rounding jitter)
+            if not moving.all():
+                t[index] = ta
+                index, ta, fa, ra, ga = index[moving], ta[moving], fa[moving], ra[moving], ga[moving]
+                if index.size == 0:
+                    break
+        t[index] = ta
+        # The check needs no slope: the plain projection spares a generic model its Jacobian here.
+        mx, my = lens.get(calib.model).project(*_plane(t, fixed, rows), coeffs)
+        missing = ~((np.abs(np.where(rows, mx, my) - target) < 1e-12) & (t * t + fixed * fixed < r_fold * r_fold))
         t[missing] = np.copysign(np.sqrt(np.maximum(r_fold * r_fold - fixed[missing] ** 2, 0.0)), target[missing])
     return t
+
+
+def _axis_projection(model):
+    """The model's project_axis (m along the free coordinate t, and dm/dt), or one built from project and jacobian."""
+    if hasattr(model, "project_axis"):
+        return model.project_axis
+
+    def project_axis(t: np.ndarray, fixed: np.ndarray, rows: np.ndarray, coeffs: tuple[float, ...]):
+        x, y = _plane(t, fixed, rows)
+        mx, my = model.project(x, y, coeffs)
+        dxx, _, _, dyy = model.jacobian(x, y, coeffs)
+        return np.where(rows, mx, my), np.where(rows, dxx, dyy)
+
+    return project_axis
 
 
 def _plane(t: np.ndarray, fixed: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(x, y) of the free coordinate t and the fixed one: x = t along rows, y = t along columns."""
     return np.where(rows, t, fixed), np.where(rows, fixed, t)
-
-
-def _along(x: np.ndarray, y: np.ndarray, rows: np.ndarray, model, calib: Calibration) -> np.ndarray:
-    """The distorted coordinate each solve matches: m_x along rows, m_y along columns."""
-    mx, my = model.project(x, y, calib.coeffs)
-    return np.where(rows, mx, my)
 
 
 def _border_pixels(calib: Calibration, samples: int) -> tuple[np.ndarray, np.ndarray]:

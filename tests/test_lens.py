@@ -128,6 +128,23 @@ def test_jacobian_matches_finite_differences(name):
                                atol=1e-7, rtol=0)
 
 
+@pytest.mark.parametrize("name", sorted(n for n, c in CAMERAS.items() if hasattr(lens.get(c.model), "project_axis")))
+def test_project_axis_matches_the_reference_projection(name):
+    calib = CAMERAS[name]
+    rng = np.random.default_rng(4)
+    t, fixed, rows = rng.uniform(-0.9, 0.9, 400), rng.uniform(-0.9, 0.9, 400), rng.random(400) < 0.5
+    m, slope = lens.get(calib.model).project_axis(t, fixed, rows, calib.coeffs)
+
+    def along(tt):  # the distorted coordinate along t, from OpenCV's pixels
+        x, y = np.where(rows, tt, fixed), np.where(rows, fixed, tt)
+        px = reference_pixels(np.column_stack([x, y, np.ones_like(x)]), calib)
+        return np.where(rows, (px[:, 0] - calib.cx) / calib.fx, (px[:, 1] - calib.cy) / calib.fy)
+
+    h = 1e-6
+    np.testing.assert_allclose(m, along(t), atol=1e-9, rtol=0)
+    np.testing.assert_allclose(slope, (along(t + h) - along(t - h)) / (2 * h), atol=1e-6, rtol=0)
+
+
 @pytest.mark.parametrize("name", sorted(CAMERAS))
 def test_unproject_rays_inverts_the_reference_projection(name):
     calib = CAMERAS[name]

@@ -14,7 +14,10 @@ A model module defines
   past 90° for fisheye models; NaN where the model has no valid preimage;
 * ``plane_guess(mx, my, coeffs)``: a starting point in the undistorted plane for Newton's inverse (NaN where the
   ray is at or past 90°, so not in the plane);
-* ``validate(coeffs)``: AppdgenError when the coefficients are not a camera of this model.
+* ``validate(coeffs)``: AppdgenError when the coefficients are not a camera of this model;
+* optionally ``project_axis(t, fixed, rows, coeffs)``: (m_x, ∂m_x/∂x) at (x, y) = (t, fixed) where the boolean
+  array ``rows`` is set, else (m_y, ∂m_y/∂y) at (fixed, t): the crop's 1-D boundary solve, which otherwise builds
+  it from ``project`` and ``jacobian`` (radtan and rational supply it: half the work, the crop's hot loop).
 
 The undistorted normalized plane only holds rays under 90° off-axis; a model that sees further is still described
 there, and its ``fold_radius`` is inf when it is one-to-one up to 90°. Helpers shared by the models live in

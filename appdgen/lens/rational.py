@@ -47,6 +47,20 @@ def jacobian(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[n
     return dxx, cross + prism_x * y, cross + prism_y * x, dyy
 
 
+def project_axis(t: np.ndarray, fixed: np.ndarray, rows: np.ndarray,
+                 coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(m_x, ∂m_x/∂x) at (x, y) = (t, fixed) where rows, else (m_y, ∂m_y/∂y) at (fixed, t); unitless."""
+    p1, p2, s1, s2, s3, s4 = coeffs[2], coeffs[3], *coeffs[8:]
+    # m_y(x, y) is m_x(y, x) with p1 ↔ p2 and s1, s2 → s3, s4: one formula serves rows and columns.
+    a, b = np.where(rows, p1, p2), np.where(rows, p2, p1)
+    c, d = np.where(rows, s1, s3), np.where(rows, s2, s4)
+    tt = t * t
+    r2 = tt + fixed * fixed
+    radial, dradial = _radial(r2, coeffs)
+    m = t * radial + 2.0 * a * (t * fixed) + b * (r2 + 2.0 * tt) + r2 * (c + d * r2)
+    return m, radial + 2.0 * tt * dradial + 2.0 * a * fixed + 6.0 * b * t + 2.0 * (c + 2.0 * d * r2) * t
+
+
 def fold_radius(coeffs: tuple[float, ...]) -> float:
     """Smallest undistorted radius where r·radial(r) stops growing or the denominator vanishes; inf past R_MAX."""
     return _fold_radius(tuple(coeffs[:8]), R_MAX)

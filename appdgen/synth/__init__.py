@@ -113,13 +113,15 @@ def frame_name(index: int) -> str:
     return f"frame_{index:06d}.png"
 
 
-def _write_frames(indices: range, calib: Calibration, out: Path, seed: int, scale: float, mount: Mount,
-                  worker: bool) -> int:
-    """Render and write frames `indices` (one task's chunk); returns how many."""
-    if worker:
-        cv2.setNumThreads(1)  # one process per core already
-    for index in indices:
-        write_image(out / frame_name(index), render_frame(calib, frame_rng(seed, index), scale, mount))
+def _write_frames(indices: range, calib: Calibration, out: Path, seed: int, scale: float, mount: Mount) -> int:
+    """Render and write frames `indices` (one task's chunk) with OpenCV on one thread; returns how many."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # --jobs says how many cores: one process each
+    try:
+        for index in indices:
+            write_image(out / frame_name(index), render_frame(calib, frame_rng(seed, index), scale, mount))
+    finally:
+        cv2.setNumThreads(threads)  # jobs == 1 runs in the caller's process: leave its setting as it was
     return len(indices)
 
 
@@ -148,7 +150,7 @@ def synthesize(
         raise AppdgenError(f"frames must be >= 0, got {frames}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    work = functools.partial(_write_frames, calib=calib, out=out, seed=seed, scale=scale, mount=mount, worker=jobs > 1)
+    work = functools.partial(_write_frames, calib=calib, out=out, seed=seed, scale=scale, mount=mount)
     for done in run_unordered(work, _chunks(frames, jobs), jobs):
         if progress is not None:
             progress(done)

@@ -24,10 +24,10 @@ class ExperimentOptions:
     """Sizes of every stage; the defaults are the accelerator run sized in docs/training.md."""
 
     out: str = "runs/paper-scale"
-    frames: int = 3000  # train frames (full-size KITTI 02 scenes)
-    val_frames: int = 100
-    test_frames: int = 200
-    samples: int = 15000  # train samples; val and test frames get as many per frame
+    frames: int = 2000  # train frames (full-size KITTI 02 scenes)
+    val_frames: int = 50
+    test_frames: int = 100
+    samples: int = 20000  # train samples; val and test frames get as many per frame
     scale: float = 1.0  # 1.0 = 1392x512, 0.25 = 348x128
     image_format: str = "png"
     minutes: float = 4.0  # fit's wall-clock budget

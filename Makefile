@@ -9,7 +9,7 @@ DEMO := demo
 # The CPU build of torch (an unpinned torch pulls a multi-GB CUDA build).
 TORCH := torch==2.13.0
 
-.PHONY: demo test test-fast train train-one-scene paper-scale paper-scale-tiny bench bench-rss clean
+.PHONY: demo test test-fast train train-one-scene paper-scale paper-scale-tiny bench bench-synth bench-rss clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -71,6 +71,10 @@ paper-scale-tiny: $(TRAIN_STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/bench_geometry.py
 	$(PY) benchmarks/bench_build.py --samples 160
+
+# Frames/s of appdgen synth for 1 and 2 jobs at full and quarter size, CPU s/frame, identical bytes (~1.5 min).
+bench-synth: $(STAMP)
+	$(PY) benchmarks/bench_synth.py --frames-full 32 --frames-quarter 128 --trials 2
 
 bench-rss: $(STAMP)
 	$(PY) benchmarks/bench_build.py --rss-only

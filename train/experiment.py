@@ -160,5 +160,5 @@ def summary_line(r: dict) -> str:
     w, h = r["size"]
     return (f"paper-scale: test MAE {t['mae']:.3f} % vs mean-predictor MAE {t['mean_predictor_mae']:.3f} % "
             f"(ratio {'n/a' if ratio is None else f'{ratio:.2f}'}) on {t['n']} images; train "
-            f"{r['fit']['images_per_s']:.0f} images/s, {r['fit']['images']} images ({r['splits'].get('train', 0)} "
+            f"{r['fit']['images_per_s'] or 0:.0f} images/s, {r['fit']['images']} images ({r['splits'].get('train', 0)} "
             f"samples) at {w}x{h} on {r['device']}; {stages}; total {sum(s.values()):.0f} s")

@@ -403,3 +403,6 @@ def test_experiment_runs_every_stage_and_prints_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit):  # a second run refuses to replace the first without --overwrite
         run_cli(["experiment", "--tiny", "--out", out, "--steps", 1], capsys)
     assert "--overwrite" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # 278x102 cannot pass 7 max-pools: refused before any frame is drawn
+        run_cli(["experiment", "--tiny", "--scale", 0.2, "--out", tmp_path / "small"], capsys)
+    assert "too small" in capsys.readouterr().err and not (tmp_path / "small").exists()

@@ -13,7 +13,9 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from appdgen.synth import scale_calibration
 from train.errors import TrainError
+from train.model import min_side
 
 #: Splits = folders under OUT/raw, each from its own seed offset.
 SPLIT_SEEDS = {"train": 0, "val": 1, "test": 2}
@@ -67,6 +69,9 @@ def check(opts: ExperimentOptions) -> None:
             raise TrainError(f"--{name.replace('_', '-')} {getattr(opts, name)}: must be at least 1")
     if not 0 < opts.scale <= 1:
         raise TrainError(f"--scale {opts.scale}: must be in (0, 1]")
+    w, h = scale_calibration(bundled_camera(), opts.scale).size
+    if min(w, h) < min_side():  # refused now, not after minutes of synth and build
+        raise TrainError(f"--scale {opts.scale}: {w}x{h} images are too small for the network ({min_side()} px)")
     if (opts.steps is None) == (opts.minutes is None):
         raise TrainError("give exactly one of --minutes or --steps")
     out = Path(opts.out)
@@ -74,13 +79,20 @@ def check(opts: ExperimentOptions) -> None:
         raise TrainError(f"--out {out}: not empty; pass --overwrite to replace it")
 
 
+def bundled_camera():
+    """KITTI 2011_09_26 camera 02, the calibration shipped with appdgen (1392x512)."""
+    from appdgen.defaults import DEFAULT_CALIB_PATH
+    from appdgen.formats import load
+
+    return load(DEFAULT_CALIB_PATH, "02")
+
+
 def synthesize_frames(opts: ExperimentOptions, raw: Path, jobs: int) -> Path:
     """raw/{train,val,test}/frame_*.png and raw/calibration.yaml; returns the calibration's path."""
-    from appdgen.defaults import DEFAULT_CALIB_PATH
-    from appdgen.formats import load, save
-    from appdgen.synth import MOUNTS, scale_calibration, synthesize
+    from appdgen.formats import save
+    from appdgen.synth import MOUNTS, synthesize
 
-    calib = load(DEFAULT_CALIB_PATH, "02")
+    calib = bundled_camera()
     counts = {"train": opts.frames, "val": opts.val_frames, "test": opts.test_frames}
     for split, offset in SPLIT_SEEDS.items():
         seed = 3 * opts.seed + offset + 1  # distinct for every (seed, split): no frame is in two splits

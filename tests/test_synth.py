@@ -15,19 +15,36 @@ from appdgen.synth import (
     scale_calibration,
     synthesize,
 )
+from appdgen.synth.street import CAR, LOOSE, Street, random_street
 from conftest import KITTI_2011_09_26
 
 
 
 def test_scale_calibration():
-    small = scale_calibration(KITTI_2011_09_26["02"], 0.25)
+    full = KITTI_2011_09_26["02"]
+    small = scale_calibration(full, 0.25)
     assert small.size == (348, 128)
-    np.testing.assert_allclose(small.K, KITTI_2011_09_26["02"].K * [[0.25], [0.25], [1.0]])
-    np.testing.assert_array_equal(small.D, KITTI_2011_09_26["02"].D)
-    assert scale_calibration(KITTI_2011_09_26["02"], 1.0) is KITTI_2011_09_26["02"]
+    np.testing.assert_allclose([small.fx, small.fy], [full.fx * 0.25, full.fy * 0.25])
+    np.testing.assert_array_equal(small.D, full.D)
+    assert scale_calibration(full, 1.0) is full
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(AppdgenError, match="scale"):
-            scale_calibration(KITTI_2011_09_26["02"], bad)
+            scale_calibration(full, bad)
+
+
+def test_scale_calibration_keeps_pixel_centres_at_integers():
+    # A principal point at the image centre ((W - 1) / 2 with pixel centres at integers) stays at the centre.
+    centred = KITTI_2011_09_26["02"].replace(cx=(1392 - 1) / 2, cy=(512 - 1) / 2)
+    for s in (0.25, 0.5, 2.0):
+        scaled = scale_calibration(centred, s)
+        assert (scaled.cx, scaled.cy) == pytest.approx(((scaled.width - 1) / 2, (scaled.height - 1) / 2))
+    # A ray hitting pixel u of the full camera hits the same place of the scaled sensor: pixel edges scale, so
+    # u' + 0.5 = (u + 0.5)·s (x/z = 0.1, 0.2 in the ideal image).
+    full = KITTI_2011_09_26["02"]
+    small = scale_calibration(full, 0.25)
+    u, v = full.fx * 0.1 + full.cx, full.fy * 0.2 + full.cy
+    assert small.fx * 0.1 + small.cx == pytest.approx((u + 0.5) * 0.25 - 0.5)
+    assert small.fy * 0.2 + small.cy == pytest.approx((v + 0.5) * 0.25 - 0.5)
 
 
 def test_frame_shape_dtype_and_determinism():
@@ -84,3 +101,47 @@ def test_rectifying_with_theta_gives_the_ideal_pinhole_image(index):
 def test_impossible_distortion_is_an_error():
     with pytest.raises(AppdgenError, match="cannot be inverted"):
         render_frame(KITTI_2011_09_26["02"].replace(k1=-1.0, k2=0.0, k3=0.0), frame_rng(0, 0), scale=0.25)
+
+
+def test_jobs_give_the_same_bytes(tmp_path):
+    calib = KITTI_2011_09_26["02"]
+    one = synthesize(calib, 5, tmp_path / "one", seed=4, scale=0.1, jobs=1)
+    calls = []
+    two = synthesize(calib, 5, tmp_path / "two", seed=4, scale=0.1, jobs=2, progress=calls.append)
+    assert [p.name for p in two] == [p.name for p in one]
+    assert [p.read_bytes() for p in two] == [p.read_bytes() for p in one]
+    assert sum(calls) == 5
+
+
+def _pose(camera) -> tuple[float, float, float, float]:
+    """(yaw, pitch, roll) in radians of the camera's optical axis and x axis in the world, and its height (m)."""
+    axis, right = camera.R[2], camera.R[0]  # rows of world→camera R: the camera's z and x axes in world terms
+    pitch = np.arcsin(axis[1])
+    return np.arctan2(axis[0], axis[2]), pitch, np.arcsin(-right[1] / np.cos(pitch)), -camera.C[1]
+
+
+@pytest.mark.parametrize("mount", [CAR, LOOSE])
+def test_mount_bounds_the_pose(mount):
+    poses = np.array([_pose(Street(frame_rng(5, i), mount).camera) for i in range(400)])
+    yaw, pitch, roll, height = poses.T
+    assert np.abs(yaw).max() <= mount.yaw_max + 1e-12 and np.std(yaw) == pytest.approx(mount.yaw, rel=0.2)
+    assert np.abs(pitch).max() <= mount.pitch and np.abs(pitch).max() > 0.9 * mount.pitch
+    assert np.abs(roll).max() <= mount.roll and np.abs(roll).max() > 0.9 * mount.roll
+    assert np.abs(height - mount.height).max() <= mount.height_jitter
+
+
+def test_car_mount_keeps_the_vanishing_point_within_the_principal_point_range():
+    # Where the street's vanishing direction (0, 0, 1) lands: spread well below ±5 % of cx, cy (paper range).
+    calib = KITTI_2011_09_26["02"]
+    spots = []
+    for i in range(300):
+        d = Street(frame_rng(6, i), CAR).camera.R @ [0.0, 0.0, 1.0]
+        spots.append((calib.fx * d[0] / d[2] + calib.cx, calib.fy * d[1] / d[2] + calib.cy))
+    spread = np.abs(np.array(spots) - [calib.cx, calib.cy]).max(axis=0)
+    assert spread[0] < 0.05 * calib.cx and spread[1] < 0.05 * calib.cy
+
+
+def test_mount_changes_the_pose_only():
+    car, loose = random_street(frame_rng(7, 0), CAR), random_street(frame_rng(7, 0), LOOSE)
+    assert len(car.groups) == len(loose.groups) and car.noise_seed == loose.noise_seed
+    assert not np.allclose(car.camera.R, loose.camera.R)

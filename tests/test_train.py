@@ -19,8 +19,10 @@ import cv2  # noqa: E402
 from train.checkpoint import check_plain  # noqa: E402
 from train.cli import main  # noqa: E402
 from train.data import (  # noqa: E402
-    Selection, ShardStream, StreamSpec, count_selected, make_loader, open_shards, read_labels, shard_mode_ok,
+    Selection, ShardStream, StreamSpec, count_selected, held_out, make_loader, open_shards, read_labels,
+    recording, shard_mode_ok,
 )
+from train.fit import FitOptions, holdout_unit  # noqa: E402
 from train.errors import TrainError  # noqa: E402
 from train.model import AppdNet, ModelConfig, check_size  # noqa: E402
 from train.predict import running_verdicts  # noqa: E402
@@ -153,19 +155,59 @@ def test_looping_stream_yields_each_sample_once_per_pass(shards):
     assert len(set(first)) == n and set(first) == set(second) and first != second
 
 
-def test_holdout_splits_by_raw_image(shards):
+@pytest.mark.parametrize("by", ["image", "recording"])
+def test_holdout_keeps_raw_images_or_recordings_whole(shards, by):
     labels = read_labels(shards)
     raw = dict(zip(labels["key"], labels["raw_path"]))
-    tr, va = (Selection("train", 0.3, side, raw) for side in ("train", "val"))
+    held = held_out({recording(r) for r in raw.values()}, 0.3) if by == "recording" else None
+    tr, va = (Selection("train", 0.3, side, raw, by, held) for side in ("train", "val"))
     side = {k: (tr.accepts({"key": k, "split": s}), va.accepts({"key": k, "split": s}))
             for k, s in zip(labels["key"], labels["split"]) if s == "train"}
     assert all(a != b for a, b in side.values()), "every training sample is on exactly one side"
-    by_raw: dict[str, set] = {}
+    unit = (lambda k: raw[k]) if by == "image" else (lambda k: raw[k].rsplit("/", 1)[0])  # synthetic: raw/recN/x
+    by_unit: dict[str, set] = {}
     for k, sides in side.items():
-        by_raw.setdefault(raw[k], set()).add(sides)
-    assert all(len(s) == 1 for s in by_raw.values()), "a raw image straddles train and val"
+        by_unit.setdefault(unit(k), set()).add(sides)
+    assert all(len(s) == 1 for s in by_unit.values()), f"a {by} straddles train and val"
     assert count_selected(labels, tr) + count_selected(labels, va) == len(side)
-    assert count_selected(labels, va) > 0
+    assert count_selected(labels, va) > 0 and count_selected(labels, tr) > 0
+
+
+def test_recording_is_the_kitti_drive_else_the_folder():
+    assert recording("2011_09_26/2011_09_26_drive_0001_sync/image_02/data/0000000000.png") == \
+        "2011_09_26_drive_0001"
+    assert recording("/k/2011_09_26_drive_0005_sync/image_02/data/7.png") == "2011_09_26_drive_0005"
+    assert recording("synth/train/frame_000001.png") == "synth/train"
+
+
+def test_holdout_by_recording_falls_back_to_image_in_a_one_folder_split(capsys):
+    labels = {"key": ["a", "b"], "split": ["train", "train"], "raw_path": ["raw/x/1.png", "raw/x/2.png"]}
+    assert holdout_unit(labels, FitOptions(shards="s", run="r")) == ("image", None)
+    assert "one recording" in capsys.readouterr().err
+    labels["raw_path"][1] = "raw/y/2.png"
+    by, held = holdout_unit(labels, FitOptions(shards="s", run="r", val_fraction=0.01))
+    assert by == "recording" and len(held) == 1  # at least one recording, never all
+
+
+def test_held_out_recordings_are_a_fraction_never_none_nor_all():
+    names = {f"drive_{i:04d}" for i in range(20)}
+    assert len(held_out(names, 0.1)) == 2 and held_out(names, 0.1) <= names
+    assert len(held_out(names, 1e-6)) == 1 and len(held_out(names, 0.999)) == 19
+    assert held_out(names, 0.3) >= held_out(names, 0.1)  # a larger fraction adds recordings
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_skipping_batches_resumes_the_stream_exactly(shards, workers):
+    ss = open_shards(shards)
+
+    def keys(skip: int) -> list[str]:
+        spec = StreamSpec(ss.for_split("train"), Selection("train"), ss.size, loop=True, shuffle=True, buffer=7,
+                          skip_batches=skip, batch=5)
+        batches = iter(make_loader(spec, 5, workers))
+        return [k for _ in range(40 - skip) for k in next(batches)["key"]]  # 200 samples: past the 72-sample pass
+
+    whole = keys(0)
+    assert keys(13) == whole[13 * 5:]
 
 
 # --- fit, checkpoints, resume -----------------------------------------------------------------------
@@ -303,14 +345,17 @@ def test_predict_calib_without_appdgen_support_is_a_clear_error(trained, tmp_pat
     assert exc.value.code == 2 and "appdgen" in capsys.readouterr().err
 
 
-@pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
-def test_export_torchscript_and_onnx_match_eager(trained, tmp_path, capsys):
-    ts = tmp_path / "m.pt"
-    out = run_cli(["export", "--ckpt", trained / "last.pt", "--torchscript", ts], capsys)
-    assert "ok" in out and ts.exists()
+def test_export_pt2_and_onnx_match_eager(trained, tmp_path, capsys):
+    pt2 = tmp_path / "m.pt2"
+    out = run_cli(["export", "--ckpt", trained / "last.pt", "--pt2", pt2], capsys)
+    assert "ok" in out and pt2.exists()
     extra = {"config.json": ""}
-    torch.jit.load(str(ts), _extra_files=extra)
+    program = torch.export.load(str(pt2), extra_files=extra)
     assert json.loads(extra["config.json"])["width"] == 128
+    model = AppdNet(ModelConfig(128, 128))
+    model.load_state_dict(torch.load(trained / "last.pt", weights_only=True)["model"])
+    x = torch.rand(5, 3, 128, 128)  # a batch size the export never saw
+    torch.testing.assert_close(program.module()(x), model.eval()(x), atol=1e-4, rtol=0)
     pytest.importorskip("onnxscript")
     out = run_cli(["export", "--ckpt", trained / "last.pt", "--onnx", tmp_path / "m.onnx"], capsys)
     assert "tolerance" in out and (tmp_path / "m.onnx").exists()
@@ -321,3 +366,43 @@ def test_cli_errors_are_one_line_exit_2(tmp_path, capsys):
         main(["fit", "--shards", str(tmp_path / "nope"), "--run", str(tmp_path / "r"), "--steps", "1"])
     assert exc.value.code == 2
     assert capsys.readouterr().err.strip().count("\n") == 0
+
+
+def test_pixel_normalisation_subtracts_the_mean_training_image(shards, tmp_path, capsys):
+    run_cli(["fit", "--shards", shards, "--run", tmp_path / "r", "--steps", 1, "--batch", 4, "--workers", 0,
+             "--val-split", "none", "--normalize", "pixel", "--quiet"], capsys)
+    ckpt = torch.load(tmp_path / "r" / "last.pt", weights_only=True)
+    ss = open_shards(shards)
+    images = [s["image"].numpy() / 255.0 for s in ShardStream(StreamSpec(ss.for_split("train"), Selection("train")))]
+    mean_image = np.mean(images, axis=0)
+    np.testing.assert_allclose(ckpt["model"]["normalize.mean"][0].numpy(), mean_image, atol=1e-5)
+    np.testing.assert_allclose(ckpt["model"]["normalize.std"].flatten().numpy(),
+                               np.std(images, axis=(0, 2, 3)), rtol=1e-4)
+    assert ckpt["config"]["model"]["normalize"] == "pixel"
+    out = run_cli(["evaluate", "--ckpt", tmp_path / "r" / "last.pt", "--shards", shards, "--workers", 0], capsys)
+    assert json.loads(out)["n"] == ss.split_count("test")  # the checkpoint rebuilds its 1×3×H×W mean buffer
+
+
+def test_experiment_runs_every_stage_and_prints_one_line(tmp_path, capsys):
+    # The tiny mode's code path at smaller sizes (make paper-scale-tiny runs the real tiny sizes).
+    out = tmp_path / "exp"
+    line = run_cli(["experiment", "--tiny", "--out", out, "--frames", 3, "--val-frames", 1, "--test-frames", 2,
+                    "--samples", 12, "--steps", 2, "--batch", 4, "--jobs", 1, "--quiet"], capsys).strip()
+    assert line.count("\n") == 0 and line.startswith("paper-scale: test MAE ")
+    for stage in ("synth", "build", "fit", "evaluate", "total"):
+        assert f"{stage} " in line
+    build = json.loads((out / "shards" / "build.json").read_text())
+    assert build["size"] == [348, 128] and build["counts"]["splits"] == {"test": 8, "train": 12, "val": 4}
+    result = json.loads((out / "eval.json").read_text())
+    assert result["n"] == 8 and f"on {result['n']} images" in line and f"{result['mae']:.3f} %" in line
+    train_frames = {r.name for r in (out / "raw" / "train").iterdir()}
+    test_frames = {r.name for r in (out / "raw" / "test").iterdir()}
+    assert (out / "raw" / "train" / "frame_000000.png").read_bytes() != \
+        (out / "raw" / "test" / "frame_000000.png").read_bytes()  # other seeds: other scenes
+    assert len(train_frames) == 3 and len(test_frames) == 2
+    with pytest.raises(SystemExit):  # a second run refuses to replace the first without --overwrite
+        run_cli(["experiment", "--tiny", "--out", out, "--steps", 1], capsys)
+    assert "--overwrite" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # 278x102 cannot pass 7 max-pools: refused before any frame is drawn
+        run_cli(["experiment", "--tiny", "--scale", 0.2, "--out", tmp_path / "small"], capsys)
+    assert "too small" in capsys.readouterr().err and not (tmp_path / "small").exists()

@@ -26,7 +26,10 @@ def cli() -> None:
 @click.option("--val-split", default="auto", show_default=True,
               help="Validation split; 'auto' = 'val' if present else a raw-image holdout; 'holdout'; 'none'.")
 @click.option("--val-fraction", default=0.1, show_default=True,
-              help="Fraction of raw images held out (by raw_path hash).")
+              help="Fraction of recordings (or raw images) held out, by hash of their name.")
+@click.option("--val-by", default="recording", show_default=True, type=click.Choice(["recording", "image"]),
+              help="Holdout unit: whole recordings (KITTI drive, else folder; a one-folder split falls back to "
+                   "image) or single raw images.")
 @click.option("--steps", type=click.IntRange(1), help="Total optimizer steps (counting resumed ones).")
 @click.option("--epochs", type=click.FloatRange(0, min_open=True), help="Total passes over the training split.")
 @click.option("--batch", default=32, show_default=True, type=click.IntRange(1), help="Images per step per rank.")
@@ -40,13 +43,16 @@ def cli() -> None:
               help="Stop early, validated and checkpointed, after this wall time (checked every --log-every steps).")
 @click.option("--shuffle-buffer", default=1000, show_default=True, type=click.IntRange(1),
               help="Samples (encoded) mixed by the shuffle buffer of each loader worker.")
-@click.option("--resume", is_flag=True, help="Continue from RUN/last.pt (starts fresh if there is none).")
+@click.option("--resume", is_flag=True,
+              help="Continue from RUN/last.pt (starts fresh if there is none), the data from where it stopped.")
 @click.option("--seed", default=0, show_default=True, help="Seed for weights and data order.")
 @DEVICE
 @click.option("--precision", default="auto", show_default=True, type=click.Choice(["auto", "fp32", "bf16"]),
               help="auto = bf16 autocast on CUDA and on CPUs with native bf16, else fp32.")
 @click.option("--stats-samples", default=256, show_default=True, type=click.IntRange(1),
               help="Images used for the per-channel mean/std.")
+@click.option("--normalize", default="channel", show_default=True, type=click.Choice(["channel", "pixel"]),
+              help="Input normalisation: per-channel mean/std, or the released code's per-pixel mean image.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 def fit(**kw) -> None:
     """Train on one split of the shards; prints a JSON summary."""
@@ -55,6 +61,49 @@ def fit(**kw) -> None:
     summary = run_fit(FitOptions(**kw))
     if summary is not None:  # rank 0 only under torchrun
         click.echo(json.dumps(summary))
+
+
+def _sized(name: str, help_text: str, **kw):
+    """An experiment option whose default lives in ExperimentOptions (shown in the help, applied there)."""
+    from train.experiment import ExperimentOptions
+
+    attr = name.lstrip("-").replace("-", "_")
+    default = getattr(ExperimentOptions(), "image_format" if attr == "format" else attr, None)
+    shown = f" [default: {default}]" if default is not None else ""
+    return click.option(name, attr, default=None, help=help_text + shown, **kw)
+
+
+@cli.command()
+@_sized("--out", "Run folder (runs/paper-scale-tiny with --tiny).")
+@click.option("--tiny", is_flag=True, help="Small sizes for 2 CPU cores (< 3 min): proves the chain, not the quality.")
+@_sized("--frames", "Train frames.", type=click.IntRange(1))
+@_sized("--val-frames", "Validation frames (a third seed).", type=click.IntRange(1))
+@_sized("--test-frames", "Test frames (a second seed).", type=click.IntRange(1))
+@_sized("--samples", "Train samples; val and test frames get as many per frame.", type=click.IntRange(1))
+@_sized("--scale", "Camera scale: 1 = 1392x512, 0.25 = 348x128.", type=float)
+@_sized("--format", "Shard image encoding.", type=click.Choice(["png", "npy"]))
+@_sized("--minutes", "Fit's wall-clock budget.", type=click.FloatRange(0, min_open=True))
+@_sized("--steps", "A step budget instead of --minutes.", type=click.IntRange(1))
+@_sized("--batch", "Images per step.", type=click.IntRange(1))
+@_sized("--lr", "Adam learning rate.", type=float)
+@_sized("--normalize", "Input normalisation.", type=click.Choice(["channel", "pixel"]))
+@_sized("--jobs", "Synth and build processes [default: all cores].", type=click.IntRange(1))
+@_sized("--workers", "DataLoader workers [default: all cores on CUDA, 1 on CPU].", type=click.IntRange(0))
+@_sized("--device", "auto, cpu or cuda.", type=click.Choice(["auto", "cpu", "cuda"]))
+@_sized("--seed", "Seed of frames, samples, weights and data order.", type=int)
+@_sized("--mount", "Synthetic camera pose spread (appdgen synth --mount).", type=click.Choice(["car", "loose"]))
+@click.option("--overwrite", is_flag=True, help="Replace a previous run in --out.")
+@click.option("--quiet", is_flag=True, help="No progress lines.")
+def experiment(tiny: bool, **kw) -> None:
+    """Synthesize full-size KITTI 02 frames, build samples, fit the paper's CNN, evaluate; prints one line."""
+    from train.experiment import ExperimentOptions, run, summary_line, tiny as tiny_sizes
+
+    given = {k: v for k, v in kw.items() if v is not None}
+    if "steps" in given:
+        given["minutes"] = None
+    opts = ExperimentOptions(**{"image_format" if k == "format" else k: v for k, v in given.items()})
+    result = run(tiny_sizes(opts) if tiny else opts)
+    click.echo(summary_line(result))
 
 
 @cli.command()
@@ -128,12 +177,13 @@ def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str |
 @cli.command()
 @click.option("--ckpt", required=True, help="Checkpoint (.pt) written by fit.")
 @click.option("--onnx", "onnx_path", help="ONNX file to write (needs onnx + onnxscript).")
-@click.option("--torchscript", "ts_path", help="TorchScript file to write.")
-def export(ckpt: str, onnx_path: str | None, ts_path: str | None) -> None:
-    """Export to ONNX and/or TorchScript and print the parity vs eager (max |diff| ≤ 1e-4)."""
+@click.option("--pt2", "pt2_path", help="torch.export program to write (.pt2; load with torch.export.load). "
+                                        "TorchScript is not offered: torch 2.13 deprecates torch.jit.")
+def export(ckpt: str, onnx_path: str | None, pt2_path: str | None) -> None:
+    """Export to ONNX and/or a torch.export .pt2 and print the parity vs eager (max |diff| ≤ 1e-4)."""
     from train.export import export as run_export
 
-    run_export(ckpt, onnx_path, ts_path)
+    run_export(ckpt, onnx_path, pt2_path)
 
 
 def user_errors() -> tuple[type[Exception], ...]:

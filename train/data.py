@@ -4,7 +4,9 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import posixpath
 import random
+import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,6 +17,7 @@ import torch
 import webdataset as wds
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
+from appdgen.sources import KITTI_DRIVE
 from train.errors import TrainError
 
 IMAGE_EXTS = ("png", "jpg", "jpeg", "npy")
@@ -111,14 +114,34 @@ def in_holdout(ident: str, fraction: float) -> bool:
     return h / 2**64 < fraction
 
 
+_DRIVE = re.compile(KITTI_DRIVE)
+#: What a holdout keeps together: whole recordings (KITTI drive, else folder), or single raw images.
+HOLDOUT_UNITS = ("recording", "image")
+
+
+def recording(raw_path: str) -> str:
+    """The recording a raw image comes from: the KITTI drive its path names, else its folder."""
+    drive = _DRIVE.search(raw_path)
+    return drive.group(0) if drive else posixpath.dirname(raw_path.replace("\\", "/"))
+
+
+def held_out(recordings: set[str], fraction: float) -> frozenset[str]:
+    """The recordings a holdout keeps for validation: `fraction` of them (at least one, never all), chosen by
+    hash so that the choice does not depend on their order or count elsewhere."""
+    ranked = sorted(recordings, key=lambda r: hashlib.sha1(r.encode()).digest())
+    return frozenset(ranked[:min(len(ranked) - 1, max(1, round(fraction * len(ranked))))])
+
+
 @dataclass(frozen=True)
 class Selection:
-    """Which samples a stream yields: one split, optionally one side of a raw-image holdout."""
+    """Which samples a stream yields: one split, optionally one side of a holdout by recording or raw image."""
 
     split: str
     holdout: float = 0.0
-    side: str = "train"  # "train" keeps the rest, "val" keeps the held-out raw images
+    side: str = "train"  # "train" keeps the rest, "val" keeps the held-out recordings (or raw images)
     raw_paths: Mapping[str, str] | None = None
+    by: str = "recording"
+    held: frozenset[str] | None = None  # the held-out recordings, when known; else a hash coin per recording
 
     def accepts(self, meta: Mapping) -> bool:
         """True when a sample's json metadata belongs to this selection."""
@@ -127,14 +150,18 @@ class Selection:
         if self.holdout <= 0:
             return True
         key = str(meta.get("key", ""))
-        ident = meta.get("raw_path") or (self.raw_paths or {}).get(key) or key
-        return in_holdout(str(ident), self.holdout) == (self.side == "val")
+        ident = str(meta.get("raw_path") or (self.raw_paths or {}).get(key) or key)
+        if self.by == "recording":
+            ident = recording(ident)
+            if self.held is not None:
+                return (ident in self.held) == (self.side == "val")
+        return in_holdout(ident, self.holdout) == (self.side == "val")
 
     def describe(self) -> str:
         """Human-readable summary for logs and checkpoints."""
         if self.holdout <= 0:
             return f"split={self.split}"
-        return f"split={self.split}, {self.side} side of a {self.holdout:.0%} raw_path-hash holdout"
+        return f"split={self.split}, {self.side} side of a {self.holdout:.0%} holdout by {self.by} (hash)"
 
 
 def count_selected(labels: Mapping[str, list] | None, sel: Selection) -> int | None:
@@ -194,6 +221,13 @@ class StreamSpec:
     world: int = 1
     force_sample_mode: bool = False
     limit: int | None = None
+    skip_batches: int = 0  # batches of `batch` samples the DataLoader already delivered (a resumed run's step)
+    batch: int = 1
+
+    def skip(self, worker: int, workers: int) -> int:
+        """Samples loader worker `worker` of `workers` already produced: the DataLoader takes batch j from worker
+        j mod workers, whole batches from one worker, so a resumed stream continues exactly where it stopped."""
+        return self.batch * max(0, -(-(self.skip_batches - worker) // workers))
 
 
 class ShardStream(IterableDataset):
@@ -210,30 +244,36 @@ class ShardStream(IterableDataset):
         super().__init__()
         self.spec = spec
 
-    def slot(self) -> tuple[int, int]:
-        """(this slot, number of slots) across ranks × loader workers."""
+    def slot(self) -> tuple[int, int, int]:
+        """(this slot, number of slots) across ranks × loader workers, and the samples this slot skips."""
         info = get_worker_info()
         worker, workers = (info.id, info.num_workers) if info else (0, 1)
-        return self.spec.rank * workers + worker, self.spec.world * workers
+        # A fresh DataLoader asks worker 0 first, but batch `skip_batches` came from worker skip_batches mod
+        # workers: each worker takes over the share of the one that was due, so the order continues unchanged.
+        worker = (worker + self.spec.skip_batches) % workers
+        return self.spec.rank * workers + worker, self.spec.world * workers, self.spec.skip(worker, workers)
 
     def __iter__(self) -> Iterator[dict]:
         """Passes over the data, forever when spec.loop, reshuffled each pass when spec.shuffle."""
-        slot, slots = self.slot()
+        slot, slots, skip = self.slot()
         epoch = self.spec.epoch0
-        produced = 0
+        produced = seen = 0
         while True:
-            before = produced
-            for sample in self._one_pass(slot, slots, epoch):
-                yield sample
+            before = seen
+            for item in self._one_pass(slot, slots, epoch):
+                seen += 1
+                if seen <= skip:
+                    continue  # a resumed run's data already trained on: skipped before decoding
+                yield self._decode(*item)
                 produced += 1
                 if self.spec.limit is not None and produced >= self.spec.limit:
                     return
-            if not self.spec.loop or produced == before:  # an empty pass would spin forever
+            if not self.spec.loop or seen == before:  # an empty pass would spin forever
                 return
             epoch += 1
 
-    def _one_pass(self, slot: int, slots: int, epoch: int) -> Iterator[dict]:
-        """One pass of this slot's share, optionally shuffled through a buffer, decoded last."""
+    def _one_pass(self, slot: int, slots: int, epoch: int) -> Iterator[tuple[dict, str, bytes, str]]:
+        """One pass of this slot's share, optionally shuffled through a buffer, still encoded."""
         spec = self.spec
         counts = [s.splits.get(spec.selection.split, 0) for s in spec.shards]
         by_shard = not spec.force_sample_mode and shard_mode_ok(counts, slots)
@@ -246,8 +286,7 @@ class ShardStream(IterableDataset):
             raw = (m for i, m in enumerate(raw) if i % slots == slot)
         if spec.shuffle:
             raw = _buffer_shuffle(raw, spec.buffer, rng)
-        for meta, ext, data, url in raw:
-            yield self._decode(meta, ext, data, url)
+        yield from raw
 
     def _accepted(self, shards: list[Shard]) -> Iterator[tuple[dict, str, bytes, str]]:
         """(json, image ext, image bytes, shard path) of accepted samples, image not yet decoded."""
@@ -304,23 +343,27 @@ def make_loader(spec: StreamSpec, batch: int, workers: int) -> DataLoader:
     )
 
 
-def channel_stats(spec: StreamSpec, n: int, n_total: int | None) -> tuple[list[float], list[float], list[float]]:
-    """Per-channel mean and std of pixels in [0, 1] over ~n samples spread evenly, plus their labels."""
+def channel_stats(spec: StreamSpec, n: int, n_total: int | None
+                  ) -> tuple[list[float], list[float], list[float], np.ndarray]:
+    """Per-channel mean and std of pixels in [0, 1] over ~n samples spread evenly, their labels, and the
+    per-pixel mean image (C×H×W float32)."""
     stride = max(1, (n_total or n) // n)
     # A 'world' of `stride` ranks in sample mode picks every stride-th sample: spread, not the first n.
     sub = StreamSpec(spec.shards, spec.selection, spec.size, world=stride, force_sample_mode=True, limit=n)
-    total = np.zeros(3)
+    image_sum: np.ndarray | None = None
     total_sq = np.zeros(3)
-    pixels = 0
+    count = 0
     labels: list[float] = []
     for sample in ShardStream(sub):
-        img = sample["image"].numpy().reshape(3, -1).astype(np.float64) / 255.0
-        total += img.sum(1)
-        total_sq += (img**2).sum(1)
-        pixels += img.shape[1]
+        img = sample["image"].numpy().astype(np.float64) / 255.0
+        image_sum = img if image_sum is None else image_sum + img
+        total_sq += (img**2).reshape(3, -1).sum(1)
+        count += 1
         labels.append(float(sample["label"]))
-    if pixels == 0:
+    if image_sum is None:
         raise TrainError(f"no samples for {spec.selection.describe()} in {len(spec.shards)} shard(s)")
-    mean = total / pixels
+    mean_image = image_sum / count
+    pixels = count * mean_image[0].size
+    mean = mean_image.reshape(3, -1).mean(1)
     std = np.sqrt(np.maximum(total_sq / pixels - mean**2, 1e-12))
-    return mean.tolist(), np.maximum(std, 1e-3).tolist(), labels
+    return mean.tolist(), np.maximum(std, 1e-3).tolist(), labels, mean_image.astype(np.float32)

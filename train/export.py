@@ -1,4 +1,9 @@
-"""`export`: TorchScript and ONNX files of a checkpoint, each checked against eager PyTorch."""
+"""`export`: torch.export (.pt2) and ONNX files of a checkpoint, each checked against eager PyTorch.
+
+No TorchScript: torch 2.13 deprecates torch.jit (trace and script) in favour of torch.export, whose
+ExportedProgram is what ONNX export already goes through here, loads with torch.export.load, and compiles
+ahead of time for C++ (AOTInductor). One graph-capture path keeps both files from drifting apart.
+"""
 from __future__ import annotations
 
 import json
@@ -34,16 +39,15 @@ def example(model: AppdNet, n: int = 2, seed: int = 0) -> torch.Tensor:
     return torch.rand(n, 3, model.cfg.height, model.cfg.width, generator=g)
 
 
-def to_torchscript(model: AppdNet, path: Path, meta: dict) -> float:
-    """Trace to TorchScript (config in extra file config.json); returns max |diff| vs eager on a new batch."""
-    with warnings.catch_warnings():
-        # torch 2.13 deprecates torch.jit in favour of torch.export; TorchScript is still what C++/mobile load.
-        warnings.simplefilter("ignore", DeprecationWarning)
-        traced = torch.jit.trace(model, example(model))
-        path.parent.mkdir(parents=True, exist_ok=True)
-        torch.jit.save(traced, str(path), _extra_files={"config.json": json.dumps(meta)})
-        loaded = torch.jit.load(str(path))
-    x = example(model, n=3, seed=1)  # a different batch size: tracing must not have frozen it
+def to_pt2(model: AppdNet, path: Path, meta: dict) -> float:
+    """Save torch.export's program (dynamic batch; config in extra file config.json); returns max |diff| vs eager
+    of the reloaded program on a batch of another size."""
+    batch = torch.export.Dim("batch", min=1)
+    program = torch.export.export(model.eval(), (example(model),), dynamic_shapes=({0: batch},))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.export.save(program, str(path), extra_files={"config.json": json.dumps(meta)})
+    loaded = torch.export.load(str(path)).module()
+    x = example(model, n=3, seed=1)
     with torch.no_grad():
         return float((loaded(x) - model(x)).abs().max())
 
@@ -101,17 +105,17 @@ def check(name: str, diff: float | None) -> None:
         raise TrainError(f"{name}: exported model disagrees with eager PyTorch by {diff:.2e}")
 
 
-def export(ckpt_path: str, onnx_path: str | None = None, torchscript_path: str | None = None) -> dict:
+def export(ckpt_path: str, onnx_path: str | None = None, pt2_path: str | None = None) -> dict:
     """Write the requested files, printing a parity line for each; returns {format: max diff}."""
-    if not onnx_path and not torchscript_path:
-        raise TrainError("nothing to export: give --onnx and/or --torchscript")
+    if not onnx_path and not pt2_path:
+        raise TrainError("nothing to export: give --onnx and/or --pt2")
     ckpt = checkpoint.load(ckpt_path)
     model = checkpoint.build_model(ckpt)
     meta = metadata(model, ckpt)
     result: dict[str, float | None] = {}
-    if torchscript_path:
-        result["torchscript"] = to_torchscript(model, Path(torchscript_path), meta)
-        check(str(torchscript_path), result["torchscript"])
+    if pt2_path:
+        result["pt2"] = to_pt2(model, Path(pt2_path), meta)
+        check(str(pt2_path), result["pt2"])
     if onnx_path:
         result["onnx"] = to_onnx(model, Path(onnx_path), meta)
         check(str(onnx_path), result["onnx"])

@@ -16,12 +16,14 @@ import torch.nn.functional as F
 
 from train import checkpoint, runtime
 from train.data import (
-    Selection, ShardSet, ShardStream, StreamSpec, channel_stats, count_selected, make_loader, open_shards,
-    read_labels,
+    HOLDOUT_UNITS, Selection, ShardSet, ShardStream, StreamSpec, channel_stats, count_selected, held_out,
+    make_loader, open_shards, read_labels, recording,
 )
 from train.errors import TrainError
-from train.model import AppdNet, ModelConfig, check_size
+from train.model import NORMALIZE, AppdNet, ModelConfig, check_size
 
+#: Options that fix the order samples arrive in; a resume with the same ones continues the data exactly.
+RESUME_SAME = ("batch", "workers", "seed", "shuffle_buffer")
 LOG_COLUMNS = ("step", "train_loss", "val_loss", "val_mae", "lr", "images_per_s")
 
 
@@ -33,7 +35,8 @@ class FitOptions:
     run: str
     split: str = "train"
     val_split: str = "auto"  # a split name, "auto" (val if present, else holdout) or "none"
-    val_fraction: float = 0.1  # raw images held out by raw_path hash when there is no val split
+    val_fraction: float = 0.1  # recordings (or raw images) held out by hash when there is no val split
+    val_by: str = "recording"  # what the holdout keeps whole: "recording" (KITTI drive, else folder) or "image"
     steps: int | None = None
     epochs: float | None = None
     batch: int = 32
@@ -50,6 +53,7 @@ class FitOptions:
     device: str = "auto"
     precision: str = "auto"
     stats_samples: int = 256
+    normalize: str = "channel"  # "channel": per-channel mean/std; "pixel": a per-pixel mean image, channel std
     quiet: bool = False
 
 
@@ -64,7 +68,7 @@ class DataPlan:
 
 
 def plan_data(ss: ShardSet, labels: dict | None, opts: FitOptions) -> DataPlan:
-    """Pick the validation set: a named split, else a raw_path-hash holdout of the training split."""
+    """Pick the validation set: a named split, else a hash holdout of the training split's recordings."""
     if ss.split_count(opts.split) == 0:
         raise TrainError(f"{ss.root}: no samples of split {opts.split!r} (build.json lists none)")
     val_split = opts.val_split
@@ -82,9 +86,28 @@ def plan_data(ss: ShardSet, labels: dict | None, opts: FitOptions) -> DataPlan:
         raw = dict(zip(labels["key"], labels["raw_path"])) if labels else None
         if raw is None:
             print("fit: no labels.parquet; holding out by each sample's json raw_path, else its key", file=sys.stderr)
-        train = Selection(opts.split, opts.val_fraction, "train", raw)
-        val = Selection(opts.split, opts.val_fraction, "val", raw)
+        by, held = holdout_unit(labels, opts)
+        train = Selection(opts.split, opts.val_fraction, "train", raw, by, held)
+        val = Selection(opts.split, opts.val_fraction, "val", raw, by, held)
     return DataPlan(train, val, _known_count(ss, labels, train), _known_count(ss, labels, val))
+
+
+def holdout_unit(labels: dict | None, opts: FitOptions) -> tuple[str, frozenset[str] | None]:
+    """--val-by and, by recording, the held-out recordings (None: a hash coin per recording, without labels).
+
+    A split recorded in one folder (e.g. synthetic frames, each its own scene) is held out by image: a holdout
+    by recording would have to put all of it on one side.
+    """
+    if opts.val_by not in HOLDOUT_UNITS:
+        raise TrainError(f"--val-by must be one of {', '.join(HOLDOUT_UNITS)}, got {opts.val_by!r}")
+    if opts.val_by == "image" or labels is None:
+        return opts.val_by, None
+    found = {recording(str(r)) for s, r in zip(labels["split"], labels["raw_path"]) if s == opts.split}
+    if len(found) < 2:
+        print(f"fit: split {opts.split!r} is one recording ({next(iter(found), '?')!r}); holding out by image",
+              file=sys.stderr)
+        return "image", None
+    return "recording", held_out(found, opts.val_fraction)
 
 
 def _known_count(ss: ShardSet, labels: dict | None, sel: Selection) -> int | None:
@@ -121,11 +144,16 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
     """A fresh checkpoint dict: normalisation from a spread subset, label mean, untrained weights."""
     size = image_size(ss, plan.train)
     check_size(*size)
+    if opts.normalize not in NORMALIZE:
+        raise TrainError(f"--normalize must be one of {', '.join(NORMALIZE)}, got {opts.normalize!r}")
     spec = StreamSpec(ss.for_split(plan.train.split), plan.train, size)
-    mean, std, sub_labels = channel_stats(spec, opts.stats_samples, plan.n_train)
+    mean, std, sub_labels, mean_image = channel_stats(spec, opts.stats_samples, plan.n_train)
     label_mean = _train_label_mean(labels, plan.train) if labels else sum(sub_labels) / len(sub_labels)
     torch.manual_seed(opts.seed)
-    model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std)))
+    model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), normalize=opts.normalize))
+    if opts.normalize == "pixel":
+        with torch.no_grad():
+            model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])
     config = {
         "model": model.cfg.to_dict(), "label": "appd_pct", "label_mean": label_mean, "appd_max": ss.appd_max,
         "data": {"shards": str(ss.root), "train": plan.train.describe(),
@@ -152,6 +180,11 @@ def load_or_init(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOpt
             print(f"fit: --resume but no {last}; starting fresh", file=sys.stderr)
         return new_state(ss, labels, plan, opts)
     state = checkpoint.load(last)
+    started = state["config"].get("fit", {})
+    changed = [k for k in RESUME_SAME if k in started and started[k] != getattr(opts, k)]
+    if changed:
+        print(f"fit: resuming with another {', '.join('--' + k.replace('_', '-') for k in changed)} than the run "
+              f"started with: the data continues from an approximate position", file=sys.stderr)
     cfg = checkpoint.model_config(state)
     size = image_size(ss, plan.train)
     if (cfg.width, cfg.height) != size:
@@ -262,13 +295,14 @@ class Trainer:
 
             self.net = DistributedDataParallel(self.model, device_ids=[device.index] if device.type == "cuda" else None)
         self.log = CsvLog(run / "log.csv", rank == 0)
+        self.trained = Tally()  # images and seconds of training steps in this process, validation excluded
         self.size = (self.model.cfg.width, self.model.cfg.height)
 
     def loader(self, step: int):
-        """Infinite shuffled training batches for this rank; epoch seeds move with the resume step."""
+        """Infinite shuffled training batches for this rank, from where step `step` left the data."""
         spec = StreamSpec(self.ss.for_split(self.plan.train.split), self.plan.train, self.size, loop=True,
-                          shuffle=True, seed=self.opts.seed, epoch0=step, buffer=self.opts.shuffle_buffer,
-                          rank=self.rank, world=self.world)
+                          shuffle=True, seed=self.opts.seed, buffer=self.opts.shuffle_buffer, rank=self.rank,
+                          world=self.world, skip_batches=step, batch=self.opts.batch)
         return iter(make_loader(spec, self.opts.batch, self.opts.workers))
 
     def val_loader(self):
@@ -308,6 +342,7 @@ class Trainer:
         val_due = final or step % (o.val_every or o.ckpt_every) == 0
         row = None
         if final or val_due or step % o.log_every == 0:
+            self.trained += (window.images, window.seconds())
             row = {"train_loss": window.mean_loss(), "images_per_s": window.rate(),
                    **(self.validate(step) if val_due else {})}
             self.log.row(step=step, lr=self.opt.param_groups[0]["lr"], **row)
@@ -357,8 +392,25 @@ class Trainer:
     def summary(self, step: int, loss: float | None, val: dict) -> dict:
         """What fit prints at the end."""
         return {"step": step, "train_loss": loss, **val, "best_val_mae": self.state.get("best_val_mae"),
+                "images": self.trained.images, "images_per_s": self.trained.rate(),
                 "last": str(self.run / "last.pt"),
                 "best": str(self.run / "best.pt") if (self.run / "best.pt").exists() else None}
+
+
+class Tally:
+    """Images and seconds summed over log windows."""
+
+    def __init__(self) -> None:
+        self.images, self.seconds = 0, 0.0
+
+    def __iadd__(self, window: tuple[int, float]) -> "Tally":
+        self.images += window[0]
+        self.seconds += window[1]
+        return self
+
+    def rate(self) -> float | None:
+        """Images per second over everything tallied (None before the first window)."""
+        return self.images / self.seconds if self.seconds > 0 else None
 
 
 class Window:
@@ -382,9 +434,13 @@ class Window:
         """Mean training loss of the window, averaged over ranks."""
         return runtime.mean_over_ranks(self.loss / max(self.steps, 1))
 
+    def seconds(self) -> float:
+        """Training time since the window started (paused time excluded)."""
+        return time.perf_counter() - self.t0
+
     def rate(self) -> float:
         """Images per second (all ranks) since the window started."""
-        return self.images / max(time.perf_counter() - self.t0, 1e-9)
+        return self.images / max(self.seconds(), 1e-9)
 
     @contextlib.contextmanager
     def paused(self) -> Iterator[None]:

@@ -11,6 +11,8 @@ from train.errors import TrainError
 #: Filters per block (Cramariuc et al. 2020): each block is conv3×3+ReLU, conv3×3+ReLU, maxpool 2×2.
 PAPER_FILTERS: tuple[int, ...] = (32, 32, 32, 64, 128, 128, 128)
 PAPER_DENSE: tuple[int, ...] = (512, 128)
+#: Input normalisation: per-channel mean and std, or (the released code's) a per-pixel mean image and channel std.
+NORMALIZE = ("channel", "pixel")
 
 
 @dataclass(frozen=True)
@@ -25,6 +27,7 @@ class ModelConfig:
     mean: tuple[float, ...] = (0.5, 0.5, 0.5)
     std: tuple[float, ...] = (0.25, 0.25, 0.25)
     channels: str = "bgr"
+    normalize: str = "channel"
 
     def to_dict(self) -> dict:
         """Plain dict (lists, numbers, str) safe for weights_only checkpoints."""
@@ -62,11 +65,16 @@ def check_size(width: int, height: int, n_blocks: int = len(PAPER_FILTERS)) -> N
 
 
 class Normalize(nn.Module):
-    """(x − mean) / std per channel, x in [0, 1]; buffers so exports carry the statistics."""
+    """(x − mean) / std, x in [0, 1]; buffers so exports and checkpoints carry the statistics.
 
-    def __init__(self, mean: tuple[float, ...], std: tuple[float, ...]) -> None:
+    mean is per channel (1×C×1×1), or with `pixels` (H, W) a mean image 1×C×H×W, filled with the channel means
+    until the trainer (or a checkpoint) sets it; std is per channel either way.
+    """
+
+    def __init__(self, mean: tuple[float, ...], std: tuple[float, ...], pixels: tuple[int, int] | None = None) -> None:
         super().__init__()
-        self.register_buffer("mean", torch.tensor(mean, dtype=torch.float32).view(1, -1, 1, 1))
+        m = torch.tensor(mean, dtype=torch.float32).view(1, -1, 1, 1)
+        self.register_buffer("mean", m.expand(1, -1, *pixels).clone() if pixels else m)
         self.register_buffer("std", torch.tensor(std, dtype=torch.float32).view(1, -1, 1, 1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -90,7 +98,9 @@ class AppdNet(nn.Module):
         super().__init__()
         check_size(cfg.width, cfg.height, len(cfg.filters))
         self.cfg = cfg
-        self.normalize = Normalize(cfg.mean, cfg.std)
+        if cfg.normalize not in NORMALIZE:
+            raise TrainError(f"normalize must be one of {', '.join(NORMALIZE)}, got {cfg.normalize!r}")
+        self.normalize = Normalize(cfg.mean, cfg.std, (cfg.height, cfg.width) if cfg.normalize == "pixel" else None)
         chans = (3, *cfg.filters)
         self.features = nn.Sequential(*(conv_block(a, b) for a, b in zip(chans, chans[1:])))
         # Flatten, not global pooling: where an error shows in the image (centre vs border) carries

@@ -53,9 +53,11 @@ def autocast(device: torch.device, dtype: torch.dtype | None) -> contextlib.Abst
 
 
 def setup_threads(device: torch.device) -> None:
-    """On CPU use every core for intra-op parallelism (torch may default to fewer)."""
+    """On CPU use every core for intra-op parallelism (torch may default to fewer); on CUDA autotune convs."""
     if device.type == "cpu":
         torch.set_num_threads(max(1, len(os.sched_getaffinity(0)) // world_size()))
+    else:
+        torch.backends.cudnn.benchmark = True  # one fixed input size: the fastest conv algorithm is found once
 
 
 def world_size() -> int:

@@ -117,14 +117,19 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
 @click.option("--seed", default=0, show_default=True, help="Scene seed: frame i depends on (seed, i) only.")
 @click.option("--scale", default=1.0, show_default=True,
               help="Render a smaller camera: size and K scaled, distortion unchanged (0.25 → 348x128 for KITTI).")
+@click.option("--mount", default="car", type=click.Choice(["car", "loose"]), show_default=True,
+              help="Camera pose spread: car (lane keeping and suspension: yaw σ 0.01 rad, pitch ±0.008, roll "
+                   "±0.005, height 1.65±0.03 m) or loose (yaw σ 0.12, pitch ±0.05, roll ±0.035, height 1.4-2.1 m).")
+@click.option("--jobs", type=int, default=None, help="Parallel processes [default: all cores]; any N, same bytes.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
-def synth(calib_path, camera, frames, out_dir, seed, scale, quiet):
+def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
     """Render procedural street frames as the (scaled) camera sees them, plus its calibration.yaml."""
     from appdgen.defaults import DEFAULT_CALIB_PATH
     from appdgen.formats import save
     from appdgen.progress import Progress
-    from appdgen.synth import scale_calibration, synthesize
+    from appdgen.distribute import default_jobs
+    from appdgen.synth import MOUNTS, scale_calibration, synthesize
 
     if frames < 1:
         raise AppdgenError(f"--frames {frames}: must be at least 1")
@@ -134,7 +139,7 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, quiet):
     scaled = scale_calibration(calib, scale)
     out = Path(out_dir)
     bar = Progress(frames, unit="frames", enabled=not quiet)
-    synthesize(calib, frames, out, seed, scale, progress=bar.advance)
+    synthesize(calib, frames, out, seed, scale, progress=bar.advance, jobs=jobs or default_jobs(), mount=MOUNTS[mount])
     save(scaled, out / "calibration.yaml")
     click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}) and calibration.yaml to {out_dir}")
 

@@ -14,26 +14,34 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from appdgen.synth.raster import Canvas
-from appdgen.synth.street import Scene, random_street
 from appdgen.calibration import Calibration
 from appdgen.distortion import undistort_pixels
+from appdgen.distribute import run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.images import write_image
+from appdgen.synth.raster import Canvas
+from appdgen.synth.street import CAR, MOUNTS, Mount, Scene, random_street
+
+__all__ = ["CAR", "MOUNTS", "Mount", "frame_name", "frame_rng", "render_frame", "render_ideal", "scale_calibration",
+           "synthesize"]
 
 MARGIN = 3  # canvas pixels beyond the outermost sample: room for bilinear taps and anti-aliased edges
 MAX_CANVAS_AREA = 16  # × the raw image area; more means the distortion is too extreme to render
 
 
 def scale_calibration(calib: Calibration, scale: float) -> Calibration:
-    """Θ of the same lens on a sensor `scale` times as large: size and K scaled (pixels), distortion unchanged."""
+    """Θ of the same lens on a sensor `scale` times as large: size and K scaled (pixels), distortion unchanged.
+
+    Pixel centres sit at integer coordinates, so a pixel's edge at −0.5 stays at −0.5: c' = (c + 0.5)·s − 0.5.
+    """
     if not (math.isfinite(scale) and scale > 0):
         raise AppdgenError(f"scale must be a positive number, got {scale!r}")
     if scale == 1.0:
         return calib
     return calib.replace(
         width=round(calib.width * scale), height=round(calib.height * scale),
-        fx=calib.fx * scale, fy=calib.fy * scale, cx=calib.cx * scale, cy=calib.cy * scale,
+        fx=calib.fx * scale, fy=calib.fy * scale,
+        cx=(calib.cx + 0.5) * scale - 0.5, cy=(calib.cy + 0.5) * scale - 0.5,
     )
 
 
@@ -88,16 +96,39 @@ def _sensor(image: np.ndarray, scene: Scene) -> np.ndarray:
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
-def render_frame(calib: Calibration, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+def render_frame(calib: Calibration, rng: np.random.Generator, scale: float = 1.0, mount: Mount = CAR) -> np.ndarray:
     """A random street as a raw frame of the camera Θ (scaled by `scale`): (H, W, 3) uint8, BGR as cv2 uses."""
     calib = scale_calibration(calib, scale)
-    scene = random_street(rng)
+    scene = random_street(rng, mount)
     return _sensor(_distorted(calib, scene), scene)
 
 
-def render_ideal(calib: Calibration, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+def render_ideal(calib: Calibration, rng: np.random.Generator, scale: float = 1.0, mount: Mount = CAR) -> np.ndarray:
     """The scene render_frame would draw from rng in this state, as an ideal pinhole image (no lens, no noise)."""
-    return _ideal(scale_calibration(calib, scale), random_street(rng))
+    return _ideal(scale_calibration(calib, scale), random_street(rng, mount))
+
+
+def frame_name(index: int) -> str:
+    """File name of frame `index` in a synth folder."""
+    return f"frame_{index:06d}.png"
+
+
+def _write_frames(indices: range, calib: Calibration, out: Path, seed: int, scale: float, mount: Mount) -> int:
+    """Render and write frames `indices` (one task's chunk) with OpenCV on one thread; returns how many."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # --jobs says how many cores: one process each
+    try:
+        for index in indices:
+            write_image(out / frame_name(index), render_frame(calib, frame_rng(seed, index), scale, mount))
+    finally:
+        cv2.setNumThreads(threads)  # jobs == 1 runs in the caller's process: leave its setting as it was
+    return len(indices)
+
+
+def _chunks(frames: int, jobs: int) -> list[range]:
+    """Index ranges small enough for a live progress line and an even finish, large enough to amortise a task."""
+    size = 1 if jobs == 1 else max(1, min(8, frames // (4 * jobs)))
+    return [range(i, min(i + size, frames)) for i in range(0, frames, size)]
 
 
 def synthesize(
@@ -107,17 +138,20 @@ def synthesize(
     seed: int,
     scale: float = 1.0,
     progress: Callable[[int], object] | None = None,
+    jobs: int = 1,
+    mount: Mount = CAR,
 ) -> list[Path]:
-    """Write frames frame_000000.png … of random streets seen by Θ (scaled); progress(1) after each one."""
+    """Write frames frame_000000.png … of random streets seen by Θ (scaled), `jobs` processes at a time.
+
+    Frame i depends on (seed, i) only, so the files are the same bytes for any `jobs`; progress(n) after each
+    finished chunk of n frames.
+    """
     if frames < 0:
         raise AppdgenError(f"frames must be >= 0, got {frames}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for index in range(frames):
-        path = out / f"frame_{index:06d}.png"
-        write_image(path, render_frame(calib, frame_rng(seed, index), scale))
-        paths.append(path)
+    work = functools.partial(_write_frames, calib=calib, out=out, seed=seed, scale=scale, mount=mount)
+    for done in run_unordered(work, _chunks(frames, jobs), jobs):
         if progress is not None:
-            progress(1)
-    return paths
+            progress(done)
+    return [out / frame_name(index) for index in range(frames)]

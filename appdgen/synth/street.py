@@ -32,6 +32,38 @@ DISTRICTS = {
 }
 
 
+@dataclass(frozen=True)
+class Mount:
+    """How the camera sits on the car: height (m) and the spread of its pose from frame to frame.
+
+    lateral: σ of the offset from the lane centre (m); height_jitter: ± around height (m); yaw: σ of the heading
+    relative to the street, clipped at ± yaw_max; pitch, roll: ± bounds (rad). Every draw is made whatever the
+    values, so two mounts give the same street (buildings, light, texture) from two poses.
+    """
+
+    height: float
+    height_jitter: float
+    lateral: float
+    yaw: float
+    yaw_max: float
+    pitch: float
+    roll: float
+
+
+#: A camera bolted to a car driving down the street. Lane keeping holds the heading to within about a degree of
+#: the lane (σ 0.01 rad = 0.6°, clipped at 0.03) and the car to ~0.3 m of the lane centre; suspension pitches the
+#: body by about ±0.5° when braking or accelerating (±0.008 rad), rolls it by ±0.3° in gentle curves (±0.005 rad)
+#: and compresses it by a few centimetres (±0.03 m around KITTI's 1.65 m). With KITTI camera 02 (fx 960 px) the
+#: vanishing point moves by σ 10 px across and ±8 px up and down, the horizon tilts by ±3.5 px at the image edge:
+#: less than a ±5 % principal-point error (±35 px in x, ±11 px in y), so the scene's geometry stays a cue to it.
+CAR = Mount(height=1.65, height_jitter=0.03, lateral=0.3, yaw=0.01, yaw_max=0.03, pitch=0.008, roll=0.005)
+#: The pose spread before issue #14 (a camera waved around: yaw σ 0.12 rad, pitch ±0.05, roll ±0.035): it moves
+#: the vanishing point by σ 115 px across and ±48 px up and down at full size, hiding the principal point's cue.
+LOOSE = Mount(height=1.75, height_jitter=0.35, lateral=0.3, yaw=0.12, yaw_max=0.3, pitch=0.05, roll=0.035)
+#: Names for the command line.
+MOUNTS = {"car": CAR, "loose": LOOSE}
+
+
 #: A drawing operation: a Canvas method's name and its arguments, the first being world points (…, 3).
 Op = tuple[str, tuple]
 
@@ -91,8 +123,8 @@ def flat(x0: float, x1: float, z0: float, z1: np.ndarray | float, height: float 
 class Street:
     """Draws one random street: layout, lighting, buildings, road furniture."""
 
-    def __init__(self, rng: np.random.Generator):
-        self.rng = rng
+    def __init__(self, rng: np.random.Generator, mount: "Mount"):
+        self.rng, self.mount = rng, mount
         elevation, azimuth = rng.uniform(0.25, 1.1), rng.uniform(-np.pi, np.pi)
         flat_sun = np.cos(elevation)
         self.sun = np.array([flat_sun * np.sin(azimuth), -np.sin(elevation), flat_sun * np.cos(azimuth)])  # unit, up
@@ -117,12 +149,12 @@ class Street:
         self.furniture: list[tuple[float, list]] = []
 
     def _camera(self) -> Camera:
-        """A car-mounted camera in a right-hand lane, with small random yaw, pitch and roll."""
-        rng = self.rng
-        x = (int(rng.integers(0, self.lanes[1])) + 0.5) * self.lane + rng.normal(0.0, 0.3)
-        C = np.array([x, -rng.uniform(1.4, 2.1), 0.0])
-        yaw = np.clip(rng.normal(0.0, 0.12), -0.3, 0.3)
-        pitch, roll = rng.uniform(-0.05, 0.05), rng.uniform(-0.035, 0.035)
+        """The camera in a right-hand lane, posed by self.mount's jitter (metres, radians)."""
+        rng, m = self.rng, self.mount
+        x = (int(rng.integers(0, self.lanes[1])) + 0.5) * self.lane + rng.normal(0.0, m.lateral)
+        C = np.array([x, -rng.uniform(m.height - m.height_jitter, m.height + m.height_jitter), 0.0])
+        yaw = np.clip(rng.normal(0.0, m.yaw), -m.yaw_max, m.yaw_max)
+        pitch, roll = rng.uniform(-m.pitch, m.pitch), rng.uniform(-m.roll, m.roll)
         cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
         Ry = np.array([[cy, 0, -sy], [0, 1, 0], [sy, 0, cy]])
         Rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
@@ -595,6 +627,6 @@ class Street:
         return float(np.hypot(x - self.camera.C[0], z - self.camera.C[2]))
 
 
-def random_street(rng: np.random.Generator) -> Scene:
-    """One random street scene; all randomness comes from rng."""
-    return Street(rng).build()
+def random_street(rng: np.random.Generator, mount: Mount = CAR) -> Scene:
+    """One random street scene seen from a camera posed as `mount` allows; all randomness comes from rng."""
+    return Street(rng, mount).build()

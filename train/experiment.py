@@ -1,0 +1,176 @@
+"""The paper-scale experiment in one call: synthesize frames, build samples, fit the paper's CNN, evaluate.
+
+Train, validation and test frames come from three seeds (three recordings: no scene is shared), all rendered by
+the bundled KITTI camera 02 mounted as on a car. One build labels them (split = folder); fit trains on `train`
+for a wall-clock budget, keeping the checkpoint best on `val`; evaluate scores it on `test`. Every stage is the
+library call behind the matching command (appdgen synth, appdgen build, python -m train fit / evaluate).
+"""
+from __future__ import annotations
+
+import math
+import shutil
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from appdgen.synth import scale_calibration
+from train.errors import TrainError
+from train.model import min_side
+
+#: Splits = folders under OUT/raw, each from its own seed offset.
+SPLIT_SEEDS = {"train": 0, "val": 1, "test": 2}
+
+
+@dataclass(frozen=True)
+class ExperimentOptions:
+    """Sizes of every stage; the defaults are the accelerator run sized in docs/training.md."""
+
+    out: str = "runs/paper-scale"
+    frames: int = 2000  # train frames (full-size KITTI 02 scenes)
+    val_frames: int = 50
+    test_frames: int = 100
+    samples: int = 20000  # train samples; val and test frames get as many per frame
+    scale: float = 1.0  # 1.0 = 1392x512, 0.25 = 348x128
+    image_format: str = "png"
+    minutes: float = 4.0  # fit's wall-clock budget
+    steps: int | None = None  # a step budget instead (tests)
+    batch: int = 32
+    lr: float = 1e-4
+    normalize: str = "channel"
+    jobs: int | None = None  # synth and build processes [default: all cores]
+    workers: int | None = None  # DataLoader workers [default: all cores on CUDA, 1 on CPU]
+    device: str = "auto"
+    seed: int = 0
+    mount: str = "car"
+    overwrite: bool = False
+    quiet: bool = False
+
+
+#: Small enough for 2 CPU cores in under 3 minutes: proves the chain, not the quality.
+TINY = dict(out="runs/paper-scale-tiny", frames=48, val_frames=8, test_frames=16, samples=960, scale=0.25,
+            minutes=1.0)
+
+
+def tiny(opts: ExperimentOptions) -> ExperimentOptions:
+    """opts with TINY's sizes wherever they are still the full run's defaults."""
+    full = ExperimentOptions()
+    return replace(opts, **{k: v for k, v in TINY.items() if getattr(opts, k) == getattr(full, k)})
+
+
+def per_frame(opts: ExperimentOptions) -> int:
+    """Samples drawn per frame so that the train split holds at least opts.samples."""
+    return max(1, math.ceil(opts.samples / opts.frames))
+
+
+def check(opts: ExperimentOptions) -> None:
+    """Refuse impossible sizes before anything is written."""
+    for name in ("frames", "val_frames", "test_frames", "samples", "batch"):
+        if getattr(opts, name) < 1:
+            raise TrainError(f"--{name.replace('_', '-')} {getattr(opts, name)}: must be at least 1")
+    if not 0 < opts.scale <= 1:
+        raise TrainError(f"--scale {opts.scale}: must be in (0, 1]")
+    w, h = scale_calibration(bundled_camera(), opts.scale).size
+    if min(w, h) < min_side():  # refused now, not after minutes of synth and build
+        raise TrainError(f"--scale {opts.scale}: {w}x{h} images are too small for the network ({min_side()} px)")
+    if (opts.steps is None) == (opts.minutes is None):
+        raise TrainError("give exactly one of --minutes or --steps")
+    out = Path(opts.out)
+    if out.exists() and any(out.iterdir()) and not opts.overwrite:
+        raise TrainError(f"--out {out}: not empty; pass --overwrite to replace it")
+
+
+def bundled_camera():
+    """KITTI 2011_09_26 camera 02, the calibration shipped with appdgen (1392x512)."""
+    from appdgen.defaults import DEFAULT_CALIB_PATH
+    from appdgen.formats import load
+
+    return load(DEFAULT_CALIB_PATH, "02")
+
+
+def synthesize_frames(opts: ExperimentOptions, raw: Path, jobs: int) -> Path:
+    """raw/{train,val,test}/frame_*.png and raw/calibration.yaml; returns the calibration's path."""
+    from appdgen.formats import save
+    from appdgen.synth import MOUNTS, synthesize
+
+    calib = bundled_camera()
+    counts = {"train": opts.frames, "val": opts.val_frames, "test": opts.test_frames}
+    for split, offset in SPLIT_SEEDS.items():
+        seed = 3 * opts.seed + offset + 1  # distinct for every (seed, split): no frame is in two splits
+        synthesize(calib, counts[split], raw / split, seed, opts.scale, jobs=jobs, mount=MOUNTS[opts.mount])
+    path = raw / "calibration.yaml"
+    save(scale_calibration(calib, opts.scale), path)
+    return path
+
+
+def build_samples(opts: ExperimentOptions, raw: Path, calib_path: Path, shards: Path, jobs: int) -> dict:
+    """One build over raw/ (split = folder), per_frame(opts) samples per frame; returns build.json."""
+    from appdgen.build import BuildConfig, build
+    from appdgen.formats import load
+    from appdgen.sources import list_images
+
+    images = list_images(str(raw), "parent")
+    total = per_frame(opts) * len(images)
+    # Enough shards that every process has two: shards are the build's unit of parallel work.
+    shard_size = max(1, min(1000, math.ceil(total / (2 * jobs))))
+    reference = load(calib_path)
+    config = BuildConfig(reference=reference, camera="02", calib_path=str(calib_path), images=tuple(images),
+                         samples=total, size=reference.size, image_format=opts.image_format, shard_size=shard_size,
+                         seed=opts.seed)
+    return build(config, shards, jobs, progress=not opts.quiet, overwrite=True)
+
+
+def run(opts: ExperimentOptions) -> dict:
+    """All stages; returns the test metrics, the fit summary and each stage's seconds."""
+    from appdgen.distribute import default_jobs
+
+    from train import runtime
+    from train.evaluate import evaluate
+    from train.fit import FitOptions, fit
+
+    check(opts)
+    out = Path(opts.out)
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    device = runtime.pick_device(opts.device)
+    cores = default_jobs()
+    jobs = opts.jobs or cores
+    workers = opts.workers if opts.workers is not None else (cores if device.type == "cuda" else 1)
+    seconds: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(stage: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        seconds[stage] = now - clock
+        clock = now
+
+    calib_path = synthesize_frames(opts, out / "raw", jobs)
+    lap("synth")
+    built = build_samples(opts, out / "raw", calib_path, out / "shards", jobs)
+    lap("build")
+    fitted = fit(FitOptions(
+        shards=str(out / "shards"), run=str(out / "run"), split="train", val_split="val",
+        steps=opts.steps or 10**9, max_minutes=None if opts.steps else opts.minutes, batch=opts.batch, lr=opts.lr,
+        workers=workers, ckpt_every=500, val_max=500, log_every=10, seed=opts.seed, device=opts.device,
+        normalize=opts.normalize, quiet=opts.quiet,
+    ))
+    lap("fit")
+    best = Path(fitted["best"] or fitted["last"])
+    result = evaluate(str(best), str(out / "shards"), "test", json_path=str(out / "eval.json"), workers=workers,
+                      device=opts.device)
+    lap("evaluate")
+    return {"test": result, "fit": fitted, "seconds": seconds, "splits": built["counts"]["splits"],
+            "size": built["size"], "device": str(device), "workers": workers, "jobs": jobs}
+
+
+def summary_line(r: dict) -> str:
+    """The experiment's one printed line: test MAE vs the mean predictor, training speed, each stage's time."""
+    t, s = r["test"], r["seconds"]
+    ratio = t["mae_vs_mean_predictor"]
+    stages = ", ".join(f"{name} {sec:.0f} s" for name, sec in s.items())
+    w, h = r["size"]
+    return (f"paper-scale: test MAE {t['mae']:.3f} % vs mean-predictor MAE {t['mean_predictor_mae']:.3f} % "
+            f"(ratio {'n/a' if ratio is None else f'{ratio:.2f}'}) on {t['n']} images; train "
+            f"{r['fit']['images_per_s'] or 0:.0f} images/s, {r['fit']['images']} images ({r['splits'].get('train', 0)} "
+            f"samples) at {w}x{h} on {r['device']}; {stages}; total {sum(s.values()):.0f} s")

@@ -139,6 +139,11 @@ def list_cameras(path: PathLike) -> list[str]:
         return list(_recognise(path).cameras)
 
 
+def native_suffix(calib: Calibration) -> str:
+    """The extension to save calib under: .yaml where OpenCV YAML holds its model (radtan, rational, kb4), else .json."""
+    return ".yaml" if calib.model in _YAML_MODELS else ".json"
+
+
 def save(calib: Calibration, path: PathLike) -> None:
     """Write atomically by extension: .yaml/.yml → OpenCV FileStorage YAML (radtan, rational, kb4), .json →
     appdgen JSON (every model); exact floats."""

@@ -1,6 +1,9 @@
-"""appdgen synth's speed: frames/s for 1 and N jobs at full and quarter KITTI size, and CPU seconds per frame.
+"""appdgen synth's speed: frames/s for 1 and N jobs at full and quarter size, and CPU seconds per frame.
 
     python benchmarks/bench_synth.py [--frames-full 48] [--frames-quarter 192] [--jobs 2] [--trials 3]
+                                     [--calib FILE --camera NAME]
+
+The camera is the bundled KITTI 02 unless --calib names another (a fisheye renders through a cube of canvases).
 
 Jobs 1 and N alternate trial by trial and the best of each is kept, so a machine shared with other work
 biases neither side. Each task also reports the CPU seconds it used: CPU s/frame at N jobs against 1 job is
@@ -16,6 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from appdgen.calibration import Calibration
 from appdgen.defaults import DEFAULT_CALIB_PATH
 from appdgen.formats import load
 from appdgen.distribute import run_unordered
@@ -28,11 +32,10 @@ def _timed_chunk(indices: range, **kw) -> tuple[int, float]:
     return _write_frames(indices, **kw), time.process_time() - start
 
 
-def timed(frames: int, scale: float, jobs: int, out: Path) -> tuple[float, float]:
+def timed(calib: Calibration, frames: int, scale: float, jobs: int, out: Path) -> tuple[float, float]:
     """(wall seconds, CPU seconds of all tasks) of synthesize's work into a fresh folder."""
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
-    calib = load(DEFAULT_CALIB_PATH, "02")
     work = functools.partial(_timed_chunk, calib=calib, out=out, seed=5, scale=scale, mount=CAR)
     wall = time.perf_counter()
     cpu = sum(c for _, c in run_unordered(work, _chunks(frames, jobs), jobs))
@@ -46,13 +49,17 @@ def main() -> None:
     ap.add_argument("--frames-quarter", type=int, default=192)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--trials", type=int, default=3)
+    ap.add_argument("--calib", default=str(DEFAULT_CALIB_PATH))
+    ap.add_argument("--camera", default=None, help="camera in --calib [default: 02 for the bundled file]")
     args = ap.parse_args()
+    calib = load(args.calib, args.camera or ("02" if args.calib == str(DEFAULT_CALIB_PATH) else None))
+    print(f"{args.calib} ({calib.model}, {calib.width}x{calib.height})")
     with tempfile.TemporaryDirectory() as tmp:
         for scale, frames in ((1.0, args.frames_full), (0.25, args.frames_quarter)):
             best: dict[int, tuple[float, float]] = {}
             for _ in range(args.trials):
                 for jobs in (1, args.jobs):
-                    wall, cpu = timed(frames, scale, jobs, Path(tmp) / f"j{jobs}")
+                    wall, cpu = timed(calib, frames, scale, jobs, Path(tmp) / f"j{jobs}")
                     if jobs not in best or wall < best[jobs][0]:
                         best[jobs] = (wall, cpu)
             same = all((Path(tmp) / "j1" / p.name).read_bytes() == p.read_bytes()

@@ -5,10 +5,14 @@ import cv2
 import numpy as np
 import pytest
 
+from appdgen import lens
 from appdgen.calibration import Calibration
+from appdgen.distortion import pixel_rays
 from appdgen.errors import AppdgenError
+from appdgen.formats import load
 from appdgen.synth import (
     _distortion_maps,
+    _lens_maps,
     frame_rng,
     render_frame,
     render_ideal,
@@ -16,8 +20,16 @@ from appdgen.synth import (
     synthesize,
 )
 from appdgen.synth.street import CAR, LOOSE, Street, random_street
+from appdgen.synth.cubemap import CubeMaps
 from conftest import KITTI_2011_09_26
+from helpers import run_cli
 
+#: TUM VI cam0 as Kalibr's pinhole-equi (Kannala–Brandt) calibration publishes it: 512x512, ~190° across.
+TUMVI_KB4 = Calibration(512, 512, 190.97847715128717, 190.9733070521226, 254.93170605935475, 256.8974428996504,
+                        model="kb4", k1=0.0034823894022493434, k2=0.0007150348452162257, k3=-0.0020532361418706202,
+                        k4=0.00020293673591811182)
+#: A wide double-sphere lens (TUM VI's ξ, α, shorter focal length) whose image circle ends inside the frame.
+WIDE_DS = Calibration(128, 128, 30.0, 30.0, 63.6, 64.1, model="ds", xi=-0.17, alpha=0.59)
 
 
 def test_scale_calibration():
@@ -30,6 +42,13 @@ def test_scale_calibration():
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(AppdgenError, match="scale"):
             scale_calibration(full, bad)
+
+
+@pytest.mark.parametrize("calib", [TUMVI_KB4, WIDE_DS])
+def test_scale_calibration_keeps_any_model(calib):
+    scaled = scale_calibration(calib, 0.5)
+    assert (scaled.model, scaled.coeffs) == (calib.model, calib.coeffs)
+    assert scaled.size == (calib.width // 2, calib.height // 2) and scaled.fx == calib.fx / 2
 
 
 def test_scale_calibration_keeps_pixel_centres_at_integers():
@@ -96,6 +115,68 @@ def test_rectifying_with_theta_gives_the_ideal_pinhole_image(index):
     assert error(raw) > 4 * rectified  # the raw frame's lines are bowed
     wrong = calib.perturb(k1=0.1)
     assert error(cv2.undistort(raw, wrong.K, wrong.D)) > 1.5 * rectified  # a miscalibration shows
+
+
+@pytest.mark.parametrize("calib, scale, wrong", [
+    (TUMVI_KB4, 0.25, {"k1": 0.1}),  # k1 ± 0.1: a TUM VI-sized error
+    (WIDE_DS, 1.0, {"alpha": -0.15}),
+])
+def test_rectifying_a_fisheye_with_theta_gives_the_ideal_pinhole_image(calib, scale, wrong):
+    # Rectified to a pinhole with the camera's own K (a ~106° or 130° view), the fisheye frame drawn on cube
+    # faces matches the scene drawn straight onto one pinhole canvas; the wrong lens does not.
+    small = scale_calibration(calib, scale)
+    assert isinstance(_lens_maps(small), CubeMaps)  # rays past 90°: the cube path
+    raw = render_frame(calib, frame_rng(5, 0), scale=scale)
+    ideal = _blurred(render_ideal(calib, frame_rng(5, 0), scale=scale))
+
+    def error(theta: Calibration) -> float:
+        maps = lens.get(theta.model).maps(theta.K, theta.coeffs, small.K, small.size)
+        return float(np.abs(_blurred(cv2.remap(raw, *maps, cv2.INTER_LINEAR)) - ideal).mean())
+
+    rectified = error(small)
+    assert rectified < 4.0  # grey levels, over the whole frame
+    assert float(np.abs(_blurred(raw) - ideal).mean()) > 2.5 * rectified  # the fisheye bends the view
+    assert error(small.replace(**{k: getattr(small, k) + d for k, d in wrong.items()})) > 1.5 * rectified
+
+
+def test_pixels_outside_the_image_circle_are_black():
+    X, _, _ = pixel_rays(*np.meshgrid(np.arange(128.0), np.arange(128.0)), WIDE_DS)
+    dark = np.isnan(X)
+    assert 0.05 < dark.mean() < 0.3  # the corners: no ray reaches them
+    for index in range(2):
+        frame = render_frame(WIDE_DS, frame_rng(2, index))
+        assert np.all(frame[dark] == 0)
+        assert np.all(frame[~dark].max(axis=-1) > 0)  # lit, however dark the asphalt
+
+
+def test_a_fisheye_sees_sideways_and_up():
+    # A 190° lens on a cube: five faces (not the back one), and the rays past 90° see buildings and sky.
+    maps = _lens_maps(scale_calibration(TUMVI_KB4, 0.25))
+    assert maps.faces == (0, 1, 2, 3, 4)
+    frame = render_frame(TUMVI_KB4, frame_rng(3, 0), scale=0.25)
+    for edge in (frame[:, :4], frame[:, -4:], frame[:4]):  # left, right, top: 100°-115° off-axis
+        assert edge.std() > 10
+
+
+def test_fisheye_jobs_give_the_same_bytes(tmp_path):
+    one = synthesize(TUMVI_KB4, 3, tmp_path / "one", seed=4, scale=0.2, jobs=1)
+    two = synthesize(TUMVI_KB4, 3, tmp_path / "two", seed=4, scale=0.2, jobs=2)
+    assert [p.read_bytes() for p in two] == [p.read_bytes() for p in one]
+
+
+@pytest.mark.parametrize("calib, name", [(TUMVI_KB4, "calibration.yaml"), (WIDE_DS, "calibration.json")])
+def test_synth_command_writes_a_calibration_of_any_model(tmp_path, calib, name):
+    from appdgen.formats import save
+
+    source = tmp_path / "lens.json"
+    save(calib, source)
+    result = run_cli(["synth", "--calib", str(source), "--frames", "1", "--scale", "0.25", "--out",
+                      str(tmp_path / "raw"), "--jobs", "1", "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert f"and {name} to" in result.output
+    scaled = scale_calibration(calib, 0.25)
+    assert load(tmp_path / "raw" / name) == scaled
+    assert cv2.imread(str(tmp_path / "raw" / "frame_000000.png")).shape == (scaled.height, scaled.width, 3)
 
 
 def test_impossible_distortion_is_an_error():

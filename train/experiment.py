@@ -90,15 +90,16 @@ def bundled_camera():
 def synthesize_frames(opts: ExperimentOptions, raw: Path, jobs: int) -> Path:
     """raw/{train,val,test}/frame_*.png and raw/calibration.yaml; returns the calibration's path."""
     from appdgen.formats import save
-    from appdgen.synth import MOUNTS, synthesize
+    from appdgen.synth import MOUNTS, calibration_name, synthesize
 
     calib = bundled_camera()
     counts = {"train": opts.frames, "val": opts.val_frames, "test": opts.test_frames}
     for split, offset in SPLIT_SEEDS.items():
         seed = 3 * opts.seed + offset + 1  # distinct for every (seed, split): no frame is in two splits
         synthesize(calib, counts[split], raw / split, seed, opts.scale, jobs=jobs, mount=MOUNTS[opts.mount])
-    path = raw / "calibration.yaml"
-    save(scale_calibration(calib, opts.scale), path)
+    scaled = scale_calibration(calib, opts.scale)
+    path = raw / calibration_name(scaled)
+    save(scaled, path)
     return path
 
 

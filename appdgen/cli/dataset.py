@@ -124,12 +124,13 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
 def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
-    """Render procedural street frames as the (scaled) camera sees them, plus its calibration.yaml."""
+    """Render procedural street frames as the (scaled) camera sees them, through any lens model, plus its
+    calibration (calibration.yaml; calibration.json for ds/eucm, which OpenCV YAML cannot hold)."""
     from appdgen.defaults import DEFAULT_CALIB_PATH
     from appdgen.formats import save
     from appdgen.progress import Progress
     from appdgen.distribute import default_jobs
-    from appdgen.synth import MOUNTS, scale_calibration, synthesize
+    from appdgen.synth import MOUNTS, calibration_name, scale_calibration, synthesize
 
     if frames < 1:
         raise AppdgenError(f"--frames {frames}: must be at least 1")
@@ -140,8 +141,9 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
     out = Path(out_dir)
     bar = Progress(frames, unit="frames", enabled=not quiet)
     synthesize(calib, frames, out, seed, scale, progress=bar.advance, jobs=jobs or default_jobs(), mount=MOUNTS[mount])
-    save(scaled, out / "calibration.yaml")
-    click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}) and calibration.yaml to {out_dir}")
+    name = calibration_name(scaled)
+    save(scaled, out / name)
+    click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}) and {name} to {out_dir}")
 
 
 @main.command("inspect")

@@ -3,6 +3,9 @@
 Each scene is drawn as an ideal pinhole image on a canvas large enough to hold every raw pixel's
 undistorted position, then resampled: raw pixel (u, v) takes the canvas colour at K·undistort(u, v).
 So straight 3-D edges come out bowed as through the real lens, and rectifying with Θ straightens them.
+A lens one canvas cannot hold (rays MAX_CANVAS_ANGLE or more off-axis, fisheyes past 90° included, or a canvas
+over MAX_CANVAS_AREA) is drawn on the faces of a cube around the camera instead (cubemap): raw pixel (u, v)
+takes the colour its ray (pixel_rays) hits; pixels without a ray, outside a fisheye's image circle, are black.
 """
 from __future__ import annotations
 
@@ -15,18 +18,21 @@ import cv2
 import numpy as np
 
 from appdgen.calibration import Calibration
-from appdgen.distortion import undistort_pixels
+from appdgen.distortion import pixel_rays, radial_fold_radius, undistort_pixels
 from appdgen.distribute import run_unordered
 from appdgen.errors import AppdgenError
+from appdgen.formats import native_suffix
 from appdgen.images import write_image
+from appdgen.synth.cubemap import CubeMaps, cube_maps, render_cube
 from appdgen.synth.raster import Canvas
 from appdgen.synth.street import CAR, MOUNTS, Mount, Scene, random_street
 
-__all__ = ["CAR", "MOUNTS", "Mount", "frame_name", "frame_rng", "render_frame", "render_ideal", "scale_calibration",
+__all__ = ["CAR", "MOUNTS", "Mount", "calibration_name", "frame_name", "frame_rng", "render_frame", "render_ideal", "scale_calibration",
            "synthesize"]
 
 MARGIN = 3  # canvas pixels beyond the outermost sample: room for bilinear taps and anti-aliased edges
-MAX_CANVAS_AREA = 16  # × the raw image area; more means the distortion is too extreme to render
+MAX_CANVAS_AREA = 16  # × the raw image area; more is drawn on a cube of canvases instead
+MAX_CANVAS_ANGLE = 80.0  # degrees off-axis: rays further out are drawn on a cube (one canvas stretches them too far)
 
 
 def scale_calibration(calib: Calibration, scale: float) -> Calibration:
@@ -50,26 +56,57 @@ def frame_rng(seed: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, index]))
 
 
-@functools.lru_cache(maxsize=8)
-def _distortion_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
-    """cv2.remap maps raw pixel → canvas pixel (float32), the canvas's camera matrix and size (w, h), pixels."""
-    u, v = np.meshgrid(np.arange(calib.width, dtype=np.float64), np.arange(calib.height, dtype=np.float64))
-    x, y = undistort_pixels(u, v, calib)
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):  # variants of undistort_pixels that mark failures NaN
-        raise AppdgenError("distortion cannot be inverted over the whole image (the lens model folds over)")
+def _pixel_grid(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """Raw pixel centres (u, v) of calib's frame, float64 (H, W) each."""
+    return np.meshgrid(np.arange(calib.width, dtype=np.float64), np.arange(calib.height, dtype=np.float64))
+
+
+def _canvas_maps(calib: Calibration, x: np.ndarray, y: np.ndarray) -> tuple | None:
+    """cv2.remap maps raw pixel → canvas pixel (float32), the canvas's K and size (w, h), pixels, from each raw
+    pixel's undistorted position (x, y); None when the canvas would exceed MAX_CANVAS_AREA raw frames."""
     ideal_u, ideal_v = calib.fx * x + calib.cx, calib.fy * y + calib.cy
     # Integer offsets keep the canvas pixel grid aligned with the ideal image's, so both draw alike.
     ox, oy = math.ceil(MARGIN - ideal_u.min()), math.ceil(MARGIN - ideal_v.min())
     size = (math.ceil(ideal_u.max()) + ox + MARGIN + 1, math.ceil(ideal_v.max()) + oy + MARGIN + 1)
     if size[0] * size[1] > MAX_CANVAS_AREA * calib.width * calib.height:
-        raise AppdgenError(
-            f"distortion too strong to render: the undistorted view of a {calib.width}x{calib.height} image "
-            f"spans {size[0]}x{size[1]} pixels"
-        )
+        return None
     K = calib.K
     K[0, 2] += ox
     K[1, 2] += oy
     return (ideal_u + ox).astype(np.float32), (ideal_v + oy).astype(np.float32), K, size
+
+
+@functools.lru_cache(maxsize=8)
+def _distortion_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
+    """cv2.remap maps raw pixel → canvas pixel (float32), the canvas's camera matrix and size (w, h), pixels."""
+    maps = _canvas_maps(calib, *undistort_pixels(*_pixel_grid(calib), calib))
+    if maps is None:
+        raise AppdgenError(f"distortion too strong to render on one canvas: a {calib.width}x{calib.height} image's "
+                           f"undistorted view spans more than {MAX_CANVAS_AREA} times its area")
+    return maps
+
+
+@functools.lru_cache(maxsize=8)
+def _lens_maps(calib: Calibration) -> tuple | CubeMaps:
+    """How the raw frame is resampled: one pinhole canvas's maps (_distortion_maps) when it holds every pixel's
+    ray under MAX_CANVAS_ANGLE within MAX_CANVAS_AREA, else a cube around the camera (cubemap)."""
+    u, v = _pixel_grid(calib)
+    x, y = undistort_pixels(u, v, calib, on_failure="nan")
+    if np.all(np.isfinite(x) & np.isfinite(y)) and np.max(x * x + y * y) < math.tan(math.radians(MAX_CANVAS_ANGLE)) ** 2:
+        maps = _canvas_maps(calib, x, y)
+        if maps is not None:
+            return maps
+    X, Y, Z = pixel_rays(u, v, calib)
+    dark = ~np.isfinite(Z)
+    # A lens one-to-one up to 90° ends where it sees no more: black outside its image circle, as a real fisheye.
+    # One that folds before (radtan with strong barrel) is a model used past its domain: refuse it.
+    if np.any(dark) and math.isfinite(radial_fold_radius(calib)):
+        i = int(np.flatnonzero(dark.ravel())[0])
+        raise AppdgenError(
+            f"distortion cannot be inverted at {int(dark.sum())} raw pixel(s), e.g. ({u.ravel()[i]:.0f}, "
+            f"{v.ravel()[i]:.0f}): the {calib.model} model folds over inside the frame"
+        )
+    return cube_maps(X, Y, Z)
 
 
 def _ideal(calib: Calibration, scene: Scene) -> np.ndarray:
@@ -79,9 +116,11 @@ def _ideal(calib: Calibration, scene: Scene) -> np.ndarray:
     return canvas.image
 
 
-def _distorted(calib: Calibration, scene: Scene) -> np.ndarray:
-    """The scene through calib's lens (BGR uint8, raw size), before sensor effects."""
-    map_x, map_y, K, size = _distortion_maps(calib)
+def _distorted(maps: tuple | CubeMaps, scene: Scene) -> np.ndarray:
+    """The scene through a lens's maps (_lens_maps: BGR uint8, raw size), before sensor effects."""
+    if isinstance(maps, CubeMaps):
+        return render_cube(maps, scene.camera, scene.draw)
+    map_x, map_y, K, size = maps
     canvas = Canvas(K, size, scene.camera)
     scene.draw(canvas)
     return cv2.remap(canvas.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -100,12 +139,22 @@ def render_frame(calib: Calibration, rng: np.random.Generator, scale: float = 1.
     """A random street as a raw frame of the camera Θ (scaled by `scale`): (H, W, 3) uint8, BGR as cv2 uses."""
     calib = scale_calibration(calib, scale)
     scene = random_street(rng, mount)
-    return _sensor(_distorted(calib, scene), scene)
+    maps = _lens_maps(calib)
+    frame = _sensor(_distorted(maps, scene), scene)
+    if isinstance(maps, CubeMaps):
+        frame[maps.dark] = 0  # no light outside the image circle: not even blur or sensor noise
+    return frame
 
 
 def render_ideal(calib: Calibration, rng: np.random.Generator, scale: float = 1.0, mount: Mount = CAR) -> np.ndarray:
     """The scene render_frame would draw from rng in this state, as an ideal pinhole image (no lens, no noise)."""
     return _ideal(scale_calibration(calib, scale), random_street(rng, mount))
+
+
+def calibration_name(calib: Calibration) -> str:
+    """File name of a synth folder's calibration: calibration.yaml, or calibration.json for models OpenCV YAML
+    cannot hold (ds, eucm)."""
+    return "calibration" + native_suffix(calib)
 
 
 def frame_name(index: int) -> str:

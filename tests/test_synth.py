@@ -11,7 +11,6 @@ from appdgen.distortion import pixel_rays
 from appdgen.errors import AppdgenError
 from appdgen.formats import load
 from appdgen.synth import (
-    _distortion_maps,
     _lens_maps,
     frame_rng,
     render_frame,
@@ -91,7 +90,7 @@ def test_synthesize_writes_deterministic_pngs_in_any_order(tmp_path):
 
 
 def test_canvas_holds_every_sample():
-    map_x, map_y, K, (w, h) = _distortion_maps(KITTI_2011_09_26["02"])
+    map_x, map_y, K, (w, h) = _lens_maps(KITTI_2011_09_26["02"])  # one canvas, not a cube
     assert map_x.min() >= 2 and map_y.min() >= 2 and map_x.max() <= w - 3 and map_y.max() <= h - 3
     assert w > KITTI_2011_09_26["02"].width and h > KITTI_2011_09_26["02"].height  # barrel distortion: the undistorted view is wider
 

@@ -77,18 +77,8 @@ def _canvas_maps(calib: Calibration, x: np.ndarray, y: np.ndarray) -> tuple | No
 
 
 @functools.lru_cache(maxsize=8)
-def _distortion_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
-    """cv2.remap maps raw pixel → canvas pixel (float32), the canvas's camera matrix and size (w, h), pixels."""
-    maps = _canvas_maps(calib, *undistort_pixels(*_pixel_grid(calib), calib))
-    if maps is None:
-        raise AppdgenError(f"distortion too strong to render on one canvas: a {calib.width}x{calib.height} image's "
-                           f"undistorted view spans more than {MAX_CANVAS_AREA} times its area")
-    return maps
-
-
-@functools.lru_cache(maxsize=8)
 def _lens_maps(calib: Calibration) -> tuple | CubeMaps:
-    """How the raw frame is resampled: one pinhole canvas's maps (_distortion_maps) when it holds every pixel's
+    """How the raw frame is resampled: one pinhole canvas's maps (_canvas_maps) when it holds every pixel's
     ray under MAX_CANVAS_ANGLE within MAX_CANVAS_AREA, else a cube around the camera (cubemap)."""
     u, v = _pixel_grid(calib)
     x, y = undistort_pixels(u, v, calib, on_failure="nan")

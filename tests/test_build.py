@@ -137,12 +137,12 @@ def test_sampler_labels_are_flat_and_references_binomial(kitti02: Calibration) -
 # --- the output format ------------------------------------------------------------------------------------------
 
 LABEL_COLUMNS = [
-    *[(name, "string") for name in ("key", "shard", "raw_path", "split", "camera")],
+    *[(name, "string") for name in ("key", "shard", "raw_path", "split", "camera", "model")],
     ("sample_index", "int64"), ("is_reference", "bool"),
     *[(name, "double") for name in (*PARAMS, "new_fx", "new_fy", "new_cx", "new_cy")],
     ("width", "int32"), ("height", "int32"), ("appd_px", "double"), ("appd_pct", "double"), ("sha256", "string"),
 ]
-BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "samples", "size", "format", "shard_size", "seed",
+BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "images_sha256", "max_fov", "samples", "size", "format", "shard_size", "seed",
                    "appd_max", "zero_fraction", "interp", "ranges", "command", "counts", "shards", "sampler",
                    "timings", "libraries"}
 

@@ -20,7 +20,8 @@ from hypothesis import strategies as st
 from appdgen.build import BuildConfig, build
 from appdgen.cli import main
 from appdgen.inspection import histogram, sheet_layout, spread, verify
-from appdgen.shards import LABEL_SCHEMA
+from appdgen.calibration import PARAMS
+from appdgen.layout import label_schema
 from appdgen.sources import RawImage
 from conftest import KITTI_2011_09_26
 
@@ -103,7 +104,7 @@ def edit_index(out: Path, change: Callable[[list[dict]], None]) -> None:
     """Rewrite labels.parquet with its rows changed in place by `change`."""
     rows = pq.read_table(out / "labels.parquet").to_pylist()
     change(rows)
-    pq.write_table(pa.Table.from_pylist(rows, schema=LABEL_SCHEMA), out / "labels.parquet")
+    pq.write_table(pa.Table.from_pylist(rows, schema=label_schema(PARAMS)), out / "labels.parquet")
 
 
 # --- inspect ---------------------------------------------------------------------------------------------------

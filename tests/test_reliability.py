@@ -75,7 +75,7 @@ CASES = [  # id, options changed from BASE (None drops one, "" is a flag), fragm
     ("per-image-zero", {"--samples": None, "--per-image": "0"}, ["--per-image 0", "at least 1"]),
     ("samples-and-per-image", {"--per-image": "2"}, ["--samples or --per-image"]),
     ("shard-size-zero", {"--shard-size": "0"}, ["--shard-size 0", "at least 1"]),
-    ("jobs-negative", {"--jobs": "-1"}, ["--jobs -1", "at least 1"]),
+    ("jobs-zero", {"--jobs": "0"}, ["--jobs 0", "-1 for all cores"]),
     ("appd-max-zero", {"--appd-max": "0"}, ["--appd-max 0", "must be a positive number"]),
     ("appd-max-nan", {"--appd-max": "nan"}, ["--appd-max nan", "must be a positive number"]),
     ("zero-fraction-above-one", {"--zero-fraction": "1.5"}, ["--zero-fraction 1.5", "must be in [0, 1]"]),

@@ -31,8 +31,8 @@ from appdgen.crop import check_output_size
 from appdgen.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.images import encode_image, read_image
-from appdgen.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, ShardStats, fragment_name,
-                            record_json, sample_key, shard_name, stats_name)
+from appdgen.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE,
+                            ShardStats, fragment_name, record_json, sample_key, shard_name, stats_name)
 from appdgen.maps import Rectification
 from appdgen.progress import Progress
 from appdgen.render import remap_image
@@ -266,7 +266,7 @@ def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -
 def _is_ours(name: str) -> bool:
     """Whether a name in --out is one a build writes (shards, index, build.json, parts) or a temporary of one."""
     name = temporary_target(name) or name
-    return name.startswith("shard-") or name in OUTPUT_NAMES
+    return bool(SHARD_FILE.fullmatch(name)) or name in OUTPUT_NAMES
 
 
 def _unplanned_leftovers(out: Path) -> bool:

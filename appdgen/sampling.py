@@ -44,6 +44,7 @@ ZERO_RANGES: dict[str, dict[str, tuple[float, float]]] = {
 DEFAULT_APPD_MAX = 1.0  # % of the raw diagonal
 SEARCH_NODES = 257  # crop grid of the search: ~1e-4 px, a third of the full crop's cost
 COARSE_COLUMNS = 48  # coarse output grid of the search: 48 × 18 for KITTI
+REACH_RAYS = 64  # random rays of the reachability search (plus 4 corners and coordinate ascent)
 CAP_RETRIES = 3  # directions whose label exceeds appd_max before the target is lowered just below it
 #: Whether the crop takes a field-of-view bound (the lens layer adds `max_fov`; until then --max-fov is refused).
 _CROP_TAKES_FOV = "max_fov" in inspect.signature(valid_region).parameters
@@ -120,8 +121,9 @@ def parse_ranges(text: str | None, reference: Calibration | None = None,
         name, sep, spec = item.partition("=")
         low_text, colon, high_text = spec.partition(":")
         if name not in names or not sep or not colon:
-            model = f" of the {reference.model} model" if reference is not None else ""
-            raise AppdgenError(f"--ranges {item!r}: expected NAME=LOW:HIGH with NAME one of{model} {', '.join(names)}")
+            model = reference.model if reference is not None else DEFAULT_MODEL
+            raise AppdgenError(f"--ranges {item!r}: expected NAME=LOW:HIGH with NAME a parameter of the {model} "
+                               f"model: {', '.join(names)}")
         relative = low_text.strip().endswith("%") and high_text.strip().endswith("%")
         if relative != (low_text.strip().endswith("%") or high_text.strip().endswith("%")):
             raise AppdgenError(f"--ranges {item!r}: give both bounds in % (relative) or both in units (absolute)")
@@ -249,8 +251,9 @@ class Sampler:
     def reach(self) -> tuple[float, np.ndarray]:
         """About the largest coarse APPD (% of the diagonal) inside the box, and the offsets where it was found.
 
-        The box's corners are ranked by the linearised APPD (all corners up to 2^12, else 4,096 of them), the best
-        four evaluated, then coordinate ascent moves one parameter at a time to its low end, 0 or its high end.
+        A cheap search: REACH_RAYS of the sampler's own rays (to the box's boundary) and the four corners the
+        linearised APPD ranks first, then coordinate ascent moving one parameter at a time to its low end, 0 or
+        its high end. APPD need not peak at a corner: the crop reacts to the parameters together.
         """
         if self._reach is None:
             free = np.flatnonzero(self._high - self._low > 0)
@@ -260,12 +263,14 @@ class Sampler:
             corners = np.where(choice == 1, self._high[free], self._low[free])
             moved = np.tensordot(corners, self._jacobian[free], axes=1)  # n × 2 × rows × cols
             linear = np.hypot(moved[:, 0], moved[:, 1]).mean(axis=(1, 2))
-            best, offsets = 0.0, np.zeros(len(self._names))
+            starts = [self._direction(rng) for _ in range(REACH_RAYS)]
             for c in np.argsort(-linear, kind="stable")[:4]:
-                trial = np.zeros(len(self._names))
-                trial[free] = corners[c]
+                starts.append(np.zeros(len(self._names)))
+                starts[-1][free] = corners[c]
+            best, offsets = 0.0, np.zeros(len(self._names))
+            for trial in starts:
                 best, offsets = self._better(trial, best, offsets)
-            for _ in range(2):
+            for _ in range(3):
                 start = best
                 for j in free:
                     for value in (self._low[j], 0.0, self._high[j]):

@@ -64,7 +64,7 @@ train-one-scene: $(TRAIN_STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_geometry.py
-	$(PY) benchmarks/bench_build.py --samples 160
+	$(PY) benchmarks/bench_build.py --samples 120
 
 bench-rss: $(STAMP)
 	$(PY) benchmarks/bench_build.py --rss-only

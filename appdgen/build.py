@@ -32,13 +32,13 @@ from appdgen.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.images import encode_image, read_image
 from appdgen.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE,
-                            ShardStats, fragment_name, record_json, sample_key, shard_name, stats_name)
+                            ShardStats, fragment_name, record_json, sample_key, shard_name)
 from appdgen.maps import Rectification
 from appdgen.progress import Progress
 from appdgen.render import remap_image
 from appdgen.sampling import (DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, check_max_fov, default_ranges,
                               valid_crop)
-from appdgen.shards import TarShard, write_fragment, write_index
+from appdgen.shards import TarShard, read_stats, write_fragment, write_index
 from appdgen.sources import RawImage, check_complete
 
 MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
@@ -182,16 +182,13 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> ShardStats:
     sampler = _sampler(config.reference, tuple(sorted(config.ranges.items())), config.appd_max,
                        config.zero_fraction, config.size, config.max_fov)
     rows, evaluations, sampler_seconds = [], 0, 0.0
-    cache: tuple[Path, np.ndarray] | None = None
     # Streamed to disk as it grows: a 1,000-sample full-size shard would be ~1 GB in memory.
     with TarShard(out / shard_name(shard)) as tar:
         for index in config.shard_samples(shard):
             draw = sampler.draw(config.seed, index)
             evaluations, sampler_seconds = evaluations + draw.evaluations, sampler_seconds + draw.seconds
             raw_image = config.image_for(index)
-            if cache is None or cache[0] != raw_image.path:
-                cache = (raw_image.path, read_raw(raw_image.path))
-            data = encode_image(remap_image(cache[1], draw.rect, config.interp), config.ext)
+            data = encode_image(remap_image(_decoded(raw_image.path), draw.rect, config.interp), config.ext)
             row = _label_row(config, shard, index, raw_image, draw.is_reference, draw.rect, draw.appd_px)
             tar.add(f"{row['key']}.json", record_json(row))
             row[HASH_COLUMN] = hashlib.sha256(data).hexdigest()
@@ -201,10 +198,24 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> ShardStats:
                        splits=dict(sorted(Counter(r["split"] for r in rows).items())),
                        references=sum(r["is_reference"] for r in rows), evaluations=evaluations,
                        sampler_seconds=sampler_seconds, seconds=time.perf_counter() - start)
-    parts = out / PARTS_DIR
-    atomic_write(parts / stats_name(shard), stats.to_json())
-    write_fragment(parts / fragment_name(shard), rows, config.reference.param_names)
+    write_fragment(out / PARTS_DIR / fragment_name(shard), rows, config.reference.param_names, stats)
     return stats
+
+
+def _decoded(path: Path) -> np.ndarray:
+    """A raw image, the last one a worker decoded kept for the next sample (consecutive samples share an image, and
+    the next shard usually starts with the image the last one ended with); a file changed since is read anew."""
+    try:
+        stat = path.stat()
+    except OSError:
+        return read_raw(path)  # names the file in its error
+    return _decoded_version(path, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=1)
+def _decoded_version(path: Path, mtime_ns: int, size: int) -> np.ndarray:
+    """read_raw of one version of a file (the cache key)."""
+    return read_raw(path)
 
 
 def read_raw(path: Path) -> np.ndarray:
@@ -331,7 +342,7 @@ def _finish(config: BuildConfig, out: Path, built: list[int], start: float, comm
             skipped: list[dict]) -> dict:
     """Write labels.parquet and build.json from the parts, then drop the parts; returns build.json's content."""
     parts = out / PARTS_DIR
-    shards = [ShardStats.from_json((parts / stats_name(k)).read_bytes()) for k in range(config.shards)]
+    shards = [read_stats(parts / fragment_name(k)) for k in range(config.shards)]
     write_index(out / INDEX, [parts / fragment_name(k) for k in range(config.shards)], config.reference.param_names)
     summary = _summary(config, shards, built, time.perf_counter() - start, command, skipped)
     atomic_write(out / BUILD_JSON, json.dumps(summary, indent=2).encode())

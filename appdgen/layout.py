@@ -43,16 +43,13 @@ def sample_key(index: int) -> str:
 
 
 def fragment_name(shard: int) -> str:
-    """Name under PARTS_DIR of one shard's label rows (Parquet), written last: it marks the shard done."""
+    """Name under PARTS_DIR of one shard's label rows (Parquet, its ShardStats in the metadata under STATS_KEY),
+    written last: it marks the shard done."""
     return f"{shard_name(shard)}.parquet"
 
 
 FRAGMENT_GLOB = "shard-*.tar.parquet"  # fragment_name of any shard
-
-
-def stats_name(shard: int) -> str:
-    """Name under PARTS_DIR of one shard's ShardStats (JSON)."""
-    return f"{shard_name(shard)}.stats.json"
+STATS_KEY = b"appdgen.shard_stats"
 
 
 def label_schema(params: Sequence[str]) -> pa.Schema:

@@ -44,6 +44,7 @@ ZERO_RANGES: dict[str, dict[str, tuple[float, float]]] = {
 DEFAULT_APPD_MAX = 1.0  # % of the raw diagonal
 SEARCH_NODES = 257  # crop grid of the search: ~1e-4 px, a third of the full crop's cost
 COARSE_COLUMNS = 48  # coarse output grid of the search: 48 × 18 for KITTI
+QUICK_RAYS = 8  # rays check_reachable tries before searching for the maximum
 REACH_RAYS = 64  # random rays of the reachability search (plus 4 corners and coordinate ascent)
 CAP_RETRIES = 3  # directions whose label exceeds appd_max before the target is lowered just below it
 #: Whether the crop takes a field-of-view bound (the lens layer adds `max_fov`; until then --max-fov is refused).
@@ -289,6 +290,11 @@ class Sampler:
 
     def check_reachable(self) -> None:
         """Refuse an --appd-max the ranges cannot reach (before anything is written), with the reachable maximum."""
+        rng = np.random.default_rng(0)
+        for _ in range(QUICK_RAYS):  # usually one of the sampler's own rays already reaches it: no search needed
+            point = self._evaluate(self._direction(rng))
+            if point is not None and point[1] >= self.appd_max:
+                return
         largest = self.reach()[0]
         if largest >= self.appd_max:
             return

@@ -301,7 +301,7 @@ def test_a_build_killed_before_its_plan_starts_afresh(setup: Setup, reference_bu
     assert_same_build(out, reference_build)
 
 
-WRITES = 1 + 3 * 5 + 2  # plan.json, (tar, stats, fragment) per shard, labels.parquet, build.json
+WRITES = 1 + 2 * 5 + 2  # plan.json, (tar, fragment with its stats) per shard, labels.parquet, build.json
 
 
 @pytest.mark.parametrize("fail_at", [1, 2, 3, 4, 9, WRITES - 1, WRITES])

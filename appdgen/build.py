@@ -218,10 +218,17 @@ def _decoded_version(path: Path, mtime_ns: int, size: int) -> np.ndarray:
     return read_raw(path)
 
 
+class RawImageError(AppdgenError):
+    """A raw image that passed the checks before the build but does not decode in a worker."""
+
+
 def read_raw(path: Path) -> np.ndarray:
     """A raw image for remapping (8-bit BGR), refusing one cut short since the build began (it decodes grey)."""
-    check_complete(path)
-    return read_image(path)
+    try:
+        check_complete(path)
+        return read_image(path)
+    except AppdgenError as exc:
+        raise RawImageError(str(exc)) from None
 
 
 def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_reference: bool,
@@ -334,6 +341,9 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
         raise AppdgenError(f"--out {out}: write failed ({exc.strerror or exc}); fix it and rerun with --resume") from None
     except UnreachableError as exc:
         raise AppdgenError(f"{exc}, then rebuild with --overwrite (--resume refuses other options)") from None
+    except RawImageError as exc:
+        raise AppdgenError(f"{exc} (finished shards are kept: replace the file and rerun with --resume, or leave it "
+                           f"out and rebuild with --overwrite)") from None
     except AppdgenError as exc:
         raise AppdgenError(f"{exc} (finished shards are kept: fix this and rerun with --resume)") from None
 

@@ -245,3 +245,15 @@ def test_remap_gives_the_bytes_of_opencvs_float_maps(interp: str, small_camera: 
     rect = rectify(small_camera.perturb(fx=0.07, k1=0.1), (87, 32))
     expected = cv2.remap(raw, rect.map_x, rect.map_y, INTERPOLATIONS[interp], borderMode=cv2.BORDER_REFLECT_101)
     assert np.array_equal(remap_image(raw, rect, interp), expected)
+
+
+def test_an_image_that_fails_in_a_worker_gets_a_hint_that_works(setup: Setup, tmp_path: Path,
+                                                                 monkeypatch) -> None:
+    def broken(path: Path) -> np.ndarray:
+        raise AppdgenError(f"{path}: not a readable image")
+
+    monkeypatch.setattr(appdgen.build, "read_image", broken)
+    appdgen.build._decoded_version.cache_clear()
+    line = assert_one_line_error(run_cli(setup.args(tmp_path / "out")), "not a readable image")
+    assert "replace the file and rerun with --resume" in line and "rebuild with --overwrite" in line
+    appdgen.build._decoded_version.cache_clear()

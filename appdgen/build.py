@@ -1,7 +1,7 @@
 """The generator: sample → rectify → label → shard, in parallel, deterministic and resumable.
 
-Shard k holds samples [k·S, (k+1)·S). A worker builds a whole shard: the tar is written atomically, then its
-stats and its Parquet fragment under `.parts/` (the fragment marks the shard done). Resume skips done shards;
+Shard k holds samples [k·S, (k+1)·S). A worker builds a whole shard's tar (written atomically); the parent then
+writes its label rows and stats as a Parquet fragment under `.parts/` (the fragment marks the shard done). Resume skips done shards;
 the index and build.json are written once every shard is done. Bytes depend on the inputs, options and seed
 only, never on --jobs or on scheduling. File names come from appdgen.layout.
 """
@@ -173,8 +173,9 @@ def _sampler(reference: Calibration, ranges: tuple, appd_max: float, zero_fracti
     return Sampler(reference, dict(ranges), appd_max, zero_fraction, size, max_fov=max_fov, labels=True)
 
 
-def build_shard(job: tuple[BuildConfig, str, int]) -> ShardStats:
-    """Build one shard (tar + stats + fragment) in a worker; returns its stats."""
+def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dict]]:
+    """Build one shard's tar in a worker; returns its stats and label rows (the parent writes the fragment, so
+    workers never load pandas, which pyarrow imports on first use: 0.2 s of each worker's start)."""
     config, out_dir, shard = job
     cv2.setNumThreads(1)  # the parent decides parallelism
     out = Path(out_dir)
@@ -198,8 +199,7 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> ShardStats:
                        splits=dict(sorted(Counter(r["split"] for r in rows).items())),
                        references=sum(r["is_reference"] for r in rows), evaluations=evaluations,
                        sampler_seconds=sampler_seconds, seconds=time.perf_counter() - start)
-    write_fragment(out / PARTS_DIR / fragment_name(shard), rows, config.reference.param_names, stats)
-    return stats
+    return stats, rows
 
 
 def _decoded(path: Path) -> np.ndarray:
@@ -334,7 +334,9 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
     bar = Progress(config.samples, enabled=progress)
     bar.advance(config.samples - sum(len(config.shard_samples(k)) for k in todo), "resumed" if resume else "")
     try:
-        for stats in run_unordered(build_shard, [(config, str(out), k) for k in todo], jobs, backend, scheduler):
+        for stats, rows in run_unordered(build_shard, [(config, str(out), k) for k in todo], jobs, backend, scheduler):
+            # Written last, after the shard's tar: the fragment marks the shard done.
+            write_fragment(out / PARTS_DIR / fragment_name(stats.shard), rows, config.reference.param_names, stats)
             bar.advance(stats.samples, stats.file)
         return _finish(config, out, todo, start, command, skipped or [])
     except OSError as exc:

@@ -199,8 +199,6 @@ class Sampler:
         self._ref_points = self._positions(self.reference)
         self._jacobian = self._position_jacobian()
         self.reference_rect = rectify(self.reference, self._out_size, self._crop(self.reference)) if self.labels else None
-        self._scratch = (np.empty_like(self.reference_rect.map_x), np.empty_like(self.reference_rect.map_y)) \
-            if self.labels else None
 
     def _crop(self, calib: Calibration, nodes: int = GRID_NODES, check: bool = True) -> Crop:
         """The crop of a calibration under this sampler's field-of-view bound."""
@@ -352,7 +350,7 @@ class Sampler:
             rect = rectify(calib, self._out_size, self._crop(calib))
         except AppdgenError:
             return None
-        distance = appd_px(self.reference_rect, rect, self._scratch)
+        distance = appd_px(self.reference_rect, rect)
         return calib, px_to_pct(distance, self.reference), rect, distance
 
     def _evaluate(self, offsets: np.ndarray) -> tuple[Calibration, float] | None:

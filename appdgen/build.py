@@ -42,13 +42,16 @@ from appdgen.shards import TarShard, read_stats, write_fragment, write_index
 from appdgen.sources import RawImage, check_complete
 
 MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
-MIN_SHARD_SIZE = 8  # … and of small ones
-SHARDS_PER_BUILD = 64  # a small build is cut into about this many shards, so every worker gets work
+MIN_SHARD_SIZE = 8  # … and about the least of small ones
+SHARDS_PER_BUILD = 64  # a small build is cut into at most this many shards, so every worker gets work
 
 
 def default_shard_size(samples: int) -> int:
-    """--shard-size when not given, from --samples alone: about 64 shards, each 8 to 1,000 samples."""
-    return min(MAX_SHARD_SIZE, max(MIN_SHARD_SIZE, -(-samples // SHARDS_PER_BUILD)))
+    """--shard-size when not given, from --samples alone: N/8 shards but at most 64, rounded down to a multiple
+    of 4 so that 2 or 4 workers (3 or 6 often) share them evenly; at most 1,000 samples a shard."""
+    shards = min(SHARDS_PER_BUILD, samples // MIN_SHARD_SIZE)
+    shards = shards // 4 * 4 or max(shards, 1)
+    return min(MAX_SHARD_SIZE, -(-samples // shards))
 
 
 def content_hash(parts: list[str]) -> str:

@@ -169,19 +169,19 @@ def test_jobs_follow_joblib(setup: Setup, reference_build: Path, tmp_path: Path)
 
 
 def test_the_default_shard_size_gives_small_builds_many_shards(small_camera: Calibration, tmp_path: Path) -> None:
-    assert [default_shard_size(n) for n in (1, 40, 120, 2000, 64_000, 10**6)] == [8, 8, 8, 32, 1000, 1000]
+    assert [default_shard_size(n) for n in (1, 24, 40, 120, 2000, 64_000, 10**6)] == [1, 8, 10, 10, 32, 1000, 1000]
     image = RawImage(tmp_path / "a.png", "a.png", "all")
     config = BuildConfig(small_camera, "02", "calib.txt", (image,), 120, (87, 32))
-    assert config.shards == 15 and {len(config.shard_samples(k)) for k in range(15)} == {8}
+    assert config.shards == 12 and {len(config.shard_samples(k)) for k in range(12)} == {10}  # 6 per worker of 2
 
 
-def test_a_build_without_shard_size_is_the_same_for_any_jobs(setup: Setup, reference_build: Path,
-                                                             tmp_path: Path) -> None:
-    # 40 samples: the default shard size is 8, the reference build's, so the bytes must be those.
-    args = setup.args(tmp_path / "out", jobs=2)
-    del args[args.index("--shard-size"):args.index("--shard-size") + 2]
-    assert run_cli(args).exit_code == 0
-    assert_same_build(tmp_path / "out", reference_build)
+def test_a_build_without_shard_size_is_the_same_for_any_jobs(setup: Setup, tmp_path: Path) -> None:
+    for jobs in (1, 2):
+        args = setup.args(tmp_path / f"out{jobs}", jobs=jobs)
+        del args[args.index("--shard-size"):args.index("--shard-size") + 2]
+        assert run_cli(args).exit_code == 0
+    assert len(list((tmp_path / "out1").glob("shard-*.tar"))) == 4  # 40 samples: 4 shards of 10
+    assert_same_build(tmp_path / "out2", tmp_path / "out1")
 
 
 # --- 7. one owner per name ---------------------------------------------------------------------------------------

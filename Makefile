@@ -9,7 +9,7 @@ DEMO := demo
 # The CPU build of torch (an unpinned torch pulls a multi-GB CUDA build).
 TORCH := torch==2.13.0
 
-.PHONY: demo test test-fast train train-one-scene paper-scale paper-scale-tiny bench bench-synth bench-rss clean
+.PHONY: demo test test-core test-fast train train-one-scene paper-scale paper-scale-tiny bench bench-synth bench-rss clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,10 @@ demo: $(STAMP)
 
 # The trainer's tests need torch: the CPU build is installed too (see TORCH).
 test: $(TRAIN_STAMP)
+	$(PY) -m pytest -q
+
+# The generator alone: the suite without torch (the trainer's tests skip). CI keeps `make test`.
+test-core: $(STAMP)
 	$(PY) -m pytest -q
 
 test-fast: $(TRAIN_STAMP)
@@ -70,7 +74,7 @@ paper-scale-tiny: $(TRAIN_STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_geometry.py
-	$(PY) benchmarks/bench_build.py --samples 160
+	$(PY) benchmarks/bench_build.py --samples 120
 
 # Frames/s of appdgen synth for 1 and 2 jobs at full and quarter size, CPU s/frame, identical bytes (~1.5 min).
 bench-synth: $(STAMP)

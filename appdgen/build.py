@@ -1,12 +1,14 @@
 """The generator: sample → rectify → label → shard, in parallel, deterministic and resumable.
 
-Shard k holds samples [k·S, (k+1)·S). A worker builds a whole shard: the tar is written atomically, then its
-stats and its Parquet fragment under `.parts/` (the fragment marks the shard done). Resume skips done shards;
+Shard k holds samples [k·S, (k+1)·S). A worker builds a whole shard's tar (written atomically); the parent then
+writes its label rows and stats as a Parquet fragment under `.parts/` (the fragment marks the shard done). Resume skips done shards;
 the index and build.json are written once every shard is done. Bytes depend on the inputs, options and seed
-only, never on --jobs or on scheduling.
+only, never on --jobs or on scheduling. File names come from appdgen.layout.
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 import hashlib
 import json
 import platform
@@ -15,29 +17,54 @@ import shutil
 import sys
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from appdgen import __version__
-from appdgen.appd import appd_px, px_to_pct
+from appdgen.appd import px_to_pct
 from appdgen.atomic import atomic_write, temporary_target
 from appdgen.calibration import Calibration
-from appdgen.crop import check_output_size, valid_region
+from appdgen.crop import check_output_size
 from appdgen.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.images import encode_image, read_image
-from appdgen.maps import rectify
+from appdgen.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE,
+                            ShardStats, fragment_name, record_json, sample_key, shard_name)
+from appdgen.maps import Rectification
 from appdgen.progress import Progress
 from appdgen.render import remap_image
-from appdgen.sampling import DEFAULT_APPD_MAX, Range, Sampler, paper_ranges
-from appdgen.shards import PARTS_DIR, record_json, sample_key, shard_name, TarShard, write_fragment, write_index
-from appdgen.sources import RawImage
+from appdgen.sampling import (DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, check_max_fov, default_ranges,
+                              valid_crop)
+from appdgen.shards import TarShard, read_stats, write_fragment, write_index
+from appdgen.sources import RawImage, check_complete
 
-FORMATS = {"png": ".png", "jpg": ".jpg", "npy": ".npy"}
-OUTPUT_NAMES = ("labels.parquet", "build.json", PARTS_DIR)
+MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
+MIN_SHARD_SIZE = 8  # … and about the least of small ones
+SHARDS_PER_BUILD = 64  # a small build is cut into at most this many shards, so every worker gets work
+
+
+def default_shard_size(samples: int) -> int:
+    """--shard-size when not given, from --samples alone: N/8 shards but at most 64, rounded down to a multiple
+    of 4 so that 2 or 4 workers (3 or 6 often) share them evenly; at most 1,000 samples a shard."""
+    shards = min(SHARDS_PER_BUILD, samples // MIN_SHARD_SIZE)
+    shards = shards // 4 * 4 or max(shards, 1)
+    return min(MAX_SHARD_SIZE, -(-samples // shards))
+
+
+def content_hash(parts: list[str]) -> str:
+    """SHA-256 of text lines (hex): what a plan records instead of names that depend on the working folder."""
+    return hashlib.sha256("\n".join(parts).encode("utf-8", "surrogateescape")).hexdigest()
+
+
+def file_hash(path: str) -> str | None:
+    """SHA-256 of a file's bytes (hex), or None when it is not a readable file."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return None
 
 
 @dataclass(frozen=True)
@@ -51,34 +78,42 @@ class BuildConfig:
     samples: int
     size: tuple[int, int]
     image_format: str = "png"
-    shard_size: int = 1000
+    shard_size: int | None = None  # default_shard_size(samples)
     seed: int = 0
-    ranges: dict[str, Range] = field(default_factory=paper_ranges)
+    ranges: dict[str, Range] | None = None  # default_ranges(reference)
     appd_max: float = DEFAULT_APPD_MAX
     zero_fraction: float = 0.01
     interp: str = "lanczos4"
+    max_fov: float | None = None  # degrees: bounds the horizontal field of view of every crop
 
     def __post_init__(self) -> None:
         if self.samples < 1:
             raise AppdgenError(f"--samples {self.samples}: must be at least 1")
+        if self.shard_size is None:
+            object.__setattr__(self, "shard_size", default_shard_size(self.samples))
         if self.shard_size < 1:
             raise AppdgenError(f"--shard-size {self.shard_size}: must be at least 1")
         if self.image_format not in FORMATS:
             raise AppdgenError(f"--format {self.image_format!r}: expected one of {', '.join(FORMATS)}")
         if not self.images:
             raise AppdgenError("no raw images given")
+        if self.ranges is None:
+            object.__setattr__(self, "ranges", default_ranges(self.reference))
         try:
             object.__setattr__(self, "size", check_output_size(self.reference, self.size))
         except AppdgenError as exc:
             raise AppdgenError(f"--size: {exc}") from None
+        check_max_fov(self.max_fov)
         self._check_reference()
-        # Refuses bad --appd-max, --zero-fraction and --ranges now, before --out is touched, not in a worker.
-        Sampler(self.reference, self.ranges, self.appd_max, self.zero_fraction, self.size)
+        # Refuses bad --appd-max, --zero-fraction and --ranges, and an --appd-max the ranges cannot reach, now
+        # (a few dozen coarse APPD evaluations), before --out is touched, not in a worker.
+        Sampler(self.reference, self.ranges, self.appd_max, self.zero_fraction, self.size,
+                max_fov=self.max_fov).check_reachable()
 
     def _check_reference(self) -> None:
         """Refuse a reference without a valid crop (e.g. a folding lens), naming its file."""
         try:
-            valid_region(self.reference)
+            valid_crop(self.reference, self.max_fov)
         except AppdgenError as exc:
             raise AppdgenError(f"{self.calib_path}: camera {self.camera}: {exc}") from None
 
@@ -86,6 +121,11 @@ class BuildConfig:
     def shards(self) -> int:
         """Number of shards."""
         return -(-self.samples // self.shard_size)
+
+    @property
+    def ext(self) -> str:
+        """The image members' extension."""
+        return FORMATS[self.image_format]
 
     def shard_samples(self, shard: int) -> range:
         """Sample indices of one shard."""
@@ -96,62 +136,111 @@ class BuildConfig:
         return self.images[index * len(self.images) // self.samples]
 
     def plan(self) -> dict:
-        """A JSON-ready description of everything that shapes the output, to check a resume against."""
+        """A JSON-ready description of everything that shapes the output, by content: the calibration file's
+        hash and the images' resolved paths (not the names they were given by), to check a resume against."""
         return {
             "appdgen_version": __version__,
-            "calibration": {"path": self.calib_path, "camera": self.camera, **self.reference.to_dict()},
-            "images": [[i.name, i.split] for i in self.images],
+            "calibration": {"camera": self.camera, "sha256": file_hash(self.calib_path), **self.reference.to_dict()},
+            "images_sha256": content_hash([f"{i.path.resolve()}\t{i.split}" for i in self.images]),
             "samples": self.samples, "size": list(self.size), "format": self.image_format,
             "shard_size": self.shard_size, "seed": self.seed, "appd_max": self.appd_max,
-            "zero_fraction": self.zero_fraction, "interp": self.interp,
+            "zero_fraction": self.zero_fraction, "interp": self.interp, "max_fov": self.max_fov,
             "ranges": {name: r.describe() for name, r in self.ranges.items()},
         }
 
+    def record(self) -> dict:
+        """plan() plus the names as given (calibration path, image names and splits): plan.json and build.json."""
+        plan = self.plan()
+        return {**plan, "calibration": {"path": self.calib_path, **plan["calibration"]},
+                "images": [[i.name, i.split] for i in self.images]}
 
-def build_shard(job: tuple[BuildConfig, str, int]) -> dict:
-    """Build one shard (tar + stats + fragment) in a worker; returns its stats."""
+    def renamed(self, record: dict) -> "BuildConfig":
+        """This config with the names a plan.json recorded (same content, so the resumed rows match the rest)."""
+        images = tuple(RawImage(i.path, name, split) for i, (name, split) in zip(self.images, record["images"]))
+        return dataclasses.replace(self, calib_path=record["calibration"]["path"], images=images)
+
+
+def plan_content(record: dict) -> dict:
+    """The plan inside a recorded plan.json: without the names, which may differ for the same content."""
+    content = {k: v for k, v in record.items() if k != "images"}
+    calibration = record.get("calibration")
+    if isinstance(calibration, dict):
+        content["calibration"] = {k: v for k, v in calibration.items() if k != "path"}
+    return content
+
+
+@functools.lru_cache(maxsize=2)
+def _sampler(reference: Calibration, ranges: tuple, appd_max: float, zero_fraction: float, size: tuple[int, int],
+             max_fov: float | None) -> Sampler:
+    """A worker's labelling sampler, kept for the next shard of the same build (its set-up costs ~12 ms)."""
+    return Sampler(reference, dict(ranges), appd_max, zero_fraction, size, max_fov=max_fov, labels=True)
+
+
+def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dict]]:
+    """Build one shard's tar in a worker; returns its stats and label rows (the parent writes the fragment, so
+    workers never load pandas, which pyarrow imports on first use: 0.2 s of each worker's start)."""
     config, out_dir, shard = job
     cv2.setNumThreads(1)  # the parent decides parallelism
     out = Path(out_dir)
     start = time.perf_counter()
-    sampler = Sampler(config.reference, config.ranges, config.appd_max, config.zero_fraction, config.size)
-    reference = rectify(config.reference, config.size)
-    ext = FORMATS[config.image_format]
+    sampler = _sampler(config.reference, tuple(sorted(config.ranges.items())), config.appd_max,
+                       config.zero_fraction, config.size, config.max_fov)
     rows, evaluations, sampler_seconds = [], 0, 0.0
-    cache: tuple[Path, np.ndarray] | None = None
     # Streamed to disk as it grows: a 1,000-sample full-size shard would be ~1 GB in memory.
     with TarShard(out / shard_name(shard)) as tar:
         for index in config.shard_samples(shard):
             draw = sampler.draw(config.seed, index)
             evaluations, sampler_seconds = evaluations + draw.evaluations, sampler_seconds + draw.seconds
-            rect = reference if draw.is_reference else rectify(draw.calib, config.size)
             raw_image = config.image_for(index)
-            if cache is None or cache[0] != raw_image.path:
-                cache = (raw_image.path, read_image(raw_image.path))
-            data = encode_image(remap_image(cache[1], rect, config.interp), ext)
-            row = _label_row(config, shard, index, raw_image, draw.is_reference, rect, appd_px(reference, rect))
+            data = encode_image(remap_image(_decoded(raw_image.path), draw.rect, config.interp), config.ext)
+            row = _label_row(config, shard, index, raw_image, draw.is_reference, draw.rect, draw.appd_px)
             tar.add(f"{row['key']}.json", record_json(row))
-            row["sha256"] = hashlib.sha256(data).hexdigest()
-            tar.add(f"{row['key']}{ext}", data)
+            row[HASH_COLUMN] = hashlib.sha256(data).hexdigest()
+            tar.add(f"{row['key']}{config.ext}", data)
             rows.append(row)
-    size = tar.size
-    stats = {"shard": shard, "file": shard_name(shard), "samples": len(rows), "bytes": size,
-             "splits": dict(sorted(Counter(r["split"] for r in rows).items())),
-             "references": sum(r["is_reference"] for r in rows), "evaluations": evaluations,
-             "sampler_seconds": sampler_seconds, "seconds": time.perf_counter() - start}
-    parts = out / PARTS_DIR
-    atomic_write(parts / f"{shard_name(shard)}.stats.json", json.dumps(stats).encode())
-    write_fragment(parts / f"{shard_name(shard)}.parquet", rows)
-    return stats
+    stats = ShardStats(shard=shard, file=shard_name(shard), samples=len(rows), bytes=tar.size,
+                       splits=dict(sorted(Counter(r["split"] for r in rows).items())),
+                       references=sum(r["is_reference"] for r in rows), evaluations=evaluations,
+                       sampler_seconds=sampler_seconds, seconds=time.perf_counter() - start)
+    return stats, rows
 
 
-def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_reference: bool, rect,
-               distance_px: float) -> dict:
+def _decoded(path: Path) -> np.ndarray:
+    """A raw image, the last one a worker decoded kept for the next sample (consecutive samples share an image, and
+    the next shard usually starts with the image the last one ended with); a file changed since is read anew."""
+    try:
+        stat = path.stat()
+    except OSError:
+        return read_raw(path)  # names the file in its error
+    return _decoded_version(path, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=1)
+def _decoded_version(path: Path, mtime_ns: int, size: int) -> np.ndarray:
+    """read_raw of one version of a file (the cache key)."""
+    return read_raw(path)
+
+
+class RawImageError(AppdgenError):
+    """A raw image that passed the checks before the build but does not decode in a worker."""
+
+
+def read_raw(path: Path) -> np.ndarray:
+    """A raw image for remapping (8-bit BGR), refusing one cut short since the build began (it decodes grey)."""
+    try:
+        check_complete(path)
+        return read_image(path)
+    except AppdgenError as exc:
+        raise RawImageError(str(exc)) from None
+
+
+def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_reference: bool,
+               rect: Rectification, distance_px: float) -> dict:
     """One sample's label: perturbed Θ, K̂ of its crop, output size and APPD (px and % of the diagonal)."""
     k = rect.new_camera_matrix
     return {
         "key": sample_key(index), "shard": shard_name(shard), "raw_path": image.name, "split": image.split,
-        "camera": config.camera, "sample_index": index, "is_reference": bool(is_reference),
+        "camera": config.camera, "model": rect.calib.model, "sample_index": index, "is_reference": bool(is_reference),
         **rect.calib.params(),
         "new_fx": float(k[0, 0]), "new_fy": float(k[1, 1]), "new_cx": float(k[0, 2]), "new_cy": float(k[1, 2]),
         "width": config.size[0], "height": config.size[1],
@@ -159,22 +248,28 @@ def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_
     }
 
 
-def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -> None:
-    """Check --out against --resume/--overwrite and record the plan; never deletes what is not ours."""
+def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -> BuildConfig:
+    """Check --out against --resume/--overwrite and record the plan; never deletes what is not ours.
+
+    Returns the config to build with: on --resume, with the names the interrupted build recorded (its content
+    may have been given from another working folder or through another relative path).
+    """
     if out.exists() and not out.is_dir():
         raise AppdgenError(f"--out {out}: exists and is not a folder")
-    plan_path = out / PARTS_DIR / "plan.json"
+    plan_path = out / PARTS_DIR / PLAN
     existing = [] if _unplanned_leftovers(out) else sorted(out.iterdir())
     if existing and resume:
         if not plan_path.is_file():
-            if (out / "labels.parquet").is_file():
+            if (out / INDEX).is_file():
                 raise AppdgenError(f"--out {out}: the build there is already complete (use --overwrite to redo it)")
-            raise AppdgenError(f"--out {out}: not an interrupted appdgen build (no {PARTS_DIR}/plan.json)")
-        if json.loads(plan_path.read_text()) != config.plan():
-            raise AppdgenError(f"--out {out}: the interrupted build used other inputs or options; "
-                               f"rerun it with the same ones, or use --overwrite")
+            raise AppdgenError(f"--out {out}: not an interrupted appdgen build (no {PARTS_DIR}/{PLAN})")
+        record = json.loads(plan_path.read_text())
+        if plan_content(record) != config.plan():
+            raise AppdgenError(f"--out {out}: the interrupted build used other inputs or options (or a calibration "
+                               f"file or image set that changed since); rerun it with the same ones, or use "
+                               f"--overwrite")
         _remove_temporaries(out)
-        return
+        return config.renamed(record)
     if existing and not overwrite:
         raise AppdgenError(f"--out {out}: folder is not empty (use --resume to finish an interrupted build, "
                            f"--overwrite to replace it)")
@@ -183,15 +278,16 @@ def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -
             _remove_outputs(out)
         (out / PARTS_DIR).mkdir(parents=True, exist_ok=True)
         _remove_temporaries(out)
-        atomic_write(plan_path, json.dumps(config.plan(), indent=1).encode())
+        atomic_write(plan_path, json.dumps(config.record(), indent=1).encode())
     except OSError as exc:
         raise AppdgenError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
+    return config
 
 
 def _is_ours(name: str) -> bool:
     """Whether a name in --out is one a build writes (shards, index, build.json, parts) or a temporary of one."""
     name = temporary_target(name) or name
-    return name.startswith("shard-") or name in OUTPUT_NAMES
+    return bool(SHARD_FILE.fullmatch(name)) or name in OUTPUT_NAMES
 
 
 def _unplanned_leftovers(out: Path) -> bool:
@@ -199,7 +295,7 @@ def _unplanned_leftovers(out: Path) -> bool:
     if not out.is_dir():
         return True
     parts = out / PARTS_DIR
-    if (parts / "plan.json").exists():
+    if (parts / PLAN).exists():
         return False
     outside = all(p.name == PARTS_DIR or (temporary_target(p.name) and _is_ours(p.name)) for p in out.iterdir())
     return outside and all(temporary_target(p.name) for p in (parts.iterdir() if parts.is_dir() else ()))
@@ -227,37 +323,44 @@ def pending_shards(out: Path, config: BuildConfig) -> list[int]:
     """Shards whose fragment (written last) or tar is missing."""
     parts = out / PARTS_DIR
     return [k for k in range(config.shards)
-            if not ((parts / f"{shard_name(k)}.parquet").is_file() and (out / shard_name(k)).is_file())]
+            if not ((parts / fragment_name(k)).is_file() and (out / shard_name(k)).is_file())]
 
 
 def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", scheduler: str | None = None,
           resume: bool = False, overwrite: bool = False, progress: bool = True, command: list[str] | None = None,
-          skipped: list[str] | None = None) -> dict:
-    """Run a build into `out` and return build.json's content."""
+          skipped: list[dict] | None = None) -> dict:
+    """Run a build into `out` and return build.json's content (skipped: images left out, {"path", "problem"})."""
     start = time.perf_counter()
     check_parallel(jobs, backend)
-    prepare_out(out, config, resume, overwrite)
+    config = prepare_out(out, config, resume, overwrite)
     todo = pending_shards(out, config)
     bar = Progress(config.samples, enabled=progress)
     bar.advance(config.samples - sum(len(config.shard_samples(k)) for k in todo), "resumed" if resume else "")
     try:
-        for stats in run_unordered(build_shard, [(config, str(out), k) for k in todo], jobs, backend, scheduler):
-            bar.advance(stats["samples"], stats["file"])
+        for stats, rows in run_unordered(build_shard, [(config, str(out), k) for k in todo], jobs, backend, scheduler):
+            # Written last, after the shard's tar: the fragment marks the shard done.
+            write_fragment(out / PARTS_DIR / fragment_name(stats.shard), rows, config.reference.param_names, stats)
+            bar.advance(stats.samples, stats.file)
         return _finish(config, out, todo, start, command, skipped or [])
     except OSError as exc:
         raise AppdgenError(f"--out {out}: write failed ({exc.strerror or exc}); fix it and rerun with --resume") from None
+    except UnreachableError as exc:
+        raise AppdgenError(f"{exc}, then rebuild with --overwrite (--resume refuses other options)") from None
+    except RawImageError as exc:
+        raise AppdgenError(f"{exc} (finished shards are kept: replace the file and rerun with --resume, or leave it "
+                           f"out and rebuild with --overwrite)") from None
     except AppdgenError as exc:
         raise AppdgenError(f"{exc} (finished shards are kept: fix this and rerun with --resume)") from None
 
 
 def _finish(config: BuildConfig, out: Path, built: list[int], start: float, command: list[str] | None,
-            skipped: list[str]) -> dict:
+            skipped: list[dict]) -> dict:
     """Write labels.parquet and build.json from the parts, then drop the parts; returns build.json's content."""
     parts = out / PARTS_DIR
-    shards = [json.loads((parts / f"{shard_name(k)}.stats.json").read_text()) for k in range(config.shards)]
-    write_index(out / "labels.parquet", [parts / f"{shard_name(k)}.parquet" for k in range(config.shards)])
+    shards = [read_stats(parts / fragment_name(k)) for k in range(config.shards)]
+    write_index(out / INDEX, [parts / fragment_name(k) for k in range(config.shards)], config.reference.param_names)
     summary = _summary(config, shards, built, time.perf_counter() - start, command, skipped)
-    atomic_write(out / "build.json", json.dumps(summary, indent=2).encode())
+    atomic_write(out / BUILD_JSON, json.dumps(summary, indent=2).encode())
     # One rename ends the build (a kill during a plain rmtree could leave a plan-less, unresumable .parts).
     trash = out / f".{PARTS_DIR}.{secrets.token_hex(4)}.tmp"
     parts.rename(trash)
@@ -265,27 +368,26 @@ def _finish(config: BuildConfig, out: Path, built: list[int], start: float, comm
     return summary
 
 
-def _summary(config: BuildConfig, shards: list[dict], built: list[int], seconds: float, command: list[str] | None,
-             skipped: list[str]) -> dict:
+def _summary(config: BuildConfig, shards: list[ShardStats], built: list[int], seconds: float,
+             command: list[str] | None, skipped: list[dict]) -> dict:
     """build.json: what was asked, what was written, how fast, with which libraries."""
     splits: Counter = Counter()
     for stats in shards:
-        splits.update(stats["splits"])
-    made = [s for s in shards if s["shard"] in set(built)]
-    drawn = sum(s["samples"] - s["references"] for s in shards)
-    written_mb = sum(s["bytes"] for s in made) / 1e6
+        splits.update(stats.splits)
+    made = [s for s in shards if s.shard in set(built)]
+    drawn = sum(s.samples - s.references for s in shards)
     return {
-        **config.plan(),
+        **config.record(),
         "command": command or sys.argv,
         "counts": {"samples": config.samples, "shards": config.shards, "splits": dict(sorted(splits.items())),
-                   "references": sum(s["references"] for s in shards), "images": len(config.images),
+                   "references": sum(s.references for s in shards), "images": len(config.images),
                    "skipped_images": skipped},
-        "shards": [{k: s[k] for k in ("file", "samples", "bytes", "splits")} for s in shards],
-        "sampler": {"evaluations_per_sample": sum(s["evaluations"] for s in shards) / max(drawn, 1),
-                    "seconds_per_sample": sum(s["sampler_seconds"] for s in shards) / max(drawn, 1)},
+        "shards": [s.listing() for s in shards],
+        "sampler": {"evaluations_per_sample": sum(s.evaluations for s in shards) / max(drawn, 1),
+                    "seconds_per_sample": sum(s.sampler_seconds for s in shards) / max(drawn, 1)},
         "timings": {"wall_seconds": seconds, "shards_built": len(made), "shards_resumed": config.shards - len(made),
-                    "samples_per_second": sum(s["samples"] for s in made) / seconds if seconds > 0 else None,
-                    "mb_written": written_mb},
+                    "samples_per_second": sum(s.samples for s in made) / seconds if seconds > 0 else None,
+                    "mb_written": sum(s.bytes for s in made) / 1e6},
         "libraries": _versions(),
     }
 

@@ -17,6 +17,16 @@ def default_jobs() -> int:
         return os.cpu_count() or 1
 
 
+def resolve_jobs(jobs: int | None) -> int:
+    """Worker processes for --jobs as joblib reads n_jobs: None → all cores, -1 → all cores, -2 → all but one,
+    …, never fewer than 1; 0 is refused."""
+    if jobs is None:
+        return default_jobs()
+    if jobs == 0:
+        raise AppdgenError("--jobs 0: expected a number of workers >= 1, or -1 for all cores (-2: all but one, …)")
+    return jobs if jobs > 0 else max(default_jobs() + 1 + jobs, 1)
+
+
 def check_parallel(jobs: int, backend: str) -> None:
     """Refuse a backend or job count run_unordered cannot use (callers check before writing anything)."""
     if backend not in BACKENDS:

@@ -20,16 +20,16 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from appdgen.build import FORMATS
+from appdgen import lens
+from appdgen.calibration import DEFAULT_MODEL, INTRINSICS
 from appdgen.errors import AppdgenError
 from appdgen.images import decode_image
-from appdgen.shards import LABEL_SCHEMA, PARTS_DIR, record_json, sample_key, shard_name
+from appdgen.layout import (BUILD_JSON, FORMATS, FRAGMENT_GLOB, HASH_COLUMN, INDEX, PARTS_DIR, PLAN, SHARD_FILE,
+                            SHARD_GLOB, label_schema, member_record, record_json, sample_key, shard_name)
 
-INDEX, BUILD_JSON = "labels.parquet", "build.json"
 BLOCK = tarfile.BLOCKSIZE  # 512: tar headers and data are padded to blocks
 RECORD = tarfile.RECORDSIZE  # 10240: tarfile (like GNU tar) pads the archive to whole 20-block records
 KEPT_PROBLEMS = 1000  # problems kept word for word; the rest are only counted
-SHARD_FILE = re.compile(r"shard-\d{6,}\.tar")
 CHECKSUM_FIELD = re.compile(rb"[0-7]{6}\0 ")  # as tarfile (and GNU tar) write it; the sum itself skips these bytes
 
 
@@ -50,9 +50,9 @@ def check_finished(out: Path) -> None:
 
 def _progress(parts: Path) -> str:
     """'3 of 4 shards done' from an unfinished build's parts folder."""
-    done = len(list(parts.glob("shard-*.parquet")))
+    done = len(list(parts.glob(FRAGMENT_GLOB)))
     try:
-        plan = json.loads((parts / "plan.json").read_text())
+        plan = json.loads((parts / PLAN).read_text())
         return f"{done} of {-(-plan['samples'] // plan['shard_size'])} shards done"
     except (OSError, ValueError, KeyError, TypeError, ZeroDivisionError):
         return f"{done} shards done"
@@ -61,17 +61,29 @@ def _progress(parts: Path) -> str:
 def open_build(out: Path) -> tuple[pa.Table, dict]:
     """A finished build's labels.parquet and build.json; AppdgenError when missing, unfinished or unreadable."""
     check_finished(out)
-    return read_index(out), read_info(out)
+    info = read_info(out)
+    return read_index(out, info), info
 
 
-def read_index(out: Path) -> pa.Table:
-    """labels.parquet with appdgen's label schema; AppdgenError naming the file when unreadable or foreign."""
+def model_params(info: dict) -> tuple[str, ...]:
+    """The label columns' parameter names of a build, from the lens model build.json records."""
+    calibration = info.get("calibration")
+    model = calibration.get("model", DEFAULT_MODEL) if isinstance(calibration, dict) else DEFAULT_MODEL
+    try:
+        return (*INTRINSICS, *lens.params(str(model)))
+    except AppdgenError as exc:
+        raise AppdgenError(f"{BUILD_JSON}: {exc}") from None
+
+
+def read_index(out: Path, info: dict) -> pa.Table:
+    """labels.parquet with the label schema of build.json's lens model; AppdgenError naming the file otherwise."""
+    schema = label_schema(model_params(info))
     try:
         table = pq.read_table(out / INDEX)
     except (OSError, pa.ArrowException) as exc:
         raise AppdgenError(f"{INDEX}: unreadable ({exc})") from None
-    if not table.schema.equals(LABEL_SCHEMA):
-        missing = [n for n in LABEL_SCHEMA.names if n not in table.schema.names]
+    if not table.schema.equals(schema):
+        missing = [n for n in schema.names if n not in table.schema.names]
         raise AppdgenError(f"{INDEX}: columns differ from appdgen's label schema"
                            + (f" (missing {', '.join(missing)})" if missing else ""))
     return table
@@ -135,7 +147,7 @@ def summary(out: Path, bins: int = 10) -> str:
     lines = [
         f"{out}: {table.num_rows} samples in {len(counts(table['shard']))} shards, {size} {info.get('format')}, "
         f"from {len(counts(table['raw_path']))} raw images" + (f" ({skipped} skipped)" if skipped else "")
-        + f" (camera {calib.get('camera')} of {calib.get('path')})",
+        + f" (camera {calib.get('camera')}, {calib.get('model', DEFAULT_MODEL)} lens, of {calib.get('path')})",
         "splits: " + ", ".join(f"{name} {n}" for name, n in counts(table["split"]).items()),
         f"reference samples (exactly the calibration, APPD 0): {pc.sum(table['is_reference']).as_py() or 0}",
         _label_line(pct, px, diagonal),
@@ -182,7 +194,7 @@ def _speed_lines(info: dict) -> list[str]:
 
 def _disk_line(out: Path) -> str:
     """Bytes on disk of the shards, the index and build.json, in MB (10⁶ bytes)."""
-    shards = sum(p.stat().st_size for p in out.glob("shard-*.tar"))
+    shards = sum(p.stat().st_size for p in out.glob(SHARD_GLOB))
     index, info = (out / INDEX).stat().st_size, (out / BUILD_JSON).stat().st_size
     return (f"on disk: {(shards + index + info) / 1e6:.1f} MB (shards {shards / 1e6:.1f} MB, "
             f"{INDEX} {index / 1e6:.2f} MB, {BUILD_JSON} {info / 1e6:.3f} MB)")
@@ -301,8 +313,8 @@ def verify(out: Path) -> Report:
     check_finished(out)
     report = Report()
     try:
-        table, info = read_index(out), read_info(out)
-        ext = image_ext(info)
+        info = read_info(out)
+        table, ext = read_index(out, info), image_ext(info)
     except AppdgenError as error:  # a damaged index or summary is a finding, not a usage error
         where, _, problem = str(error).partition(": ")
         report.add(where, problem)
@@ -324,7 +336,7 @@ def verify(out: Path) -> Report:
             continue
         rows = table.filter(pc.equal(table["shard"], name)).sort_by("sample_index").to_pylist()
         _check_shard(path, rows, ext, report)
-    for path in sorted(out.glob("shard-*.tar")):
+    for path in sorted(out.glob(SHARD_GLOB)):
         if path.name not in shards:
             report.add(path.name, f"shard file not named in {INDEX}")
     return report
@@ -439,12 +451,12 @@ def _block_problem(raw: BinaryIO, member: tarfile.TarInfo) -> str | None:
 def _content_problem(name: str, data: bytes, row: dict) -> str | None:
     """An image member's sha256, or a JSON member's fields and bytes, against its index row."""
     if not name.endswith(".json"):
-        return None if hashlib.sha256(data).hexdigest() == row["sha256"] else f"sha256 differs from {INDEX}"
+        return None if hashlib.sha256(data).hexdigest() == row[HASH_COLUMN] else f"sha256 differs from {INDEX}"
     try:
         record = json.loads(data)
     except (UnicodeDecodeError, ValueError) as exc:
         return f"not valid JSON ({exc})"
-    want = {k: v for k, v in row.items() if k != "sha256"}
+    want = member_record(row)
     if not isinstance(record, dict):
         return "JSON is not an object"
     if set(record) != set(want):
@@ -453,7 +465,7 @@ def _content_problem(name: str, data: bytes, row: dict) -> str | None:
     for key in ("key", "appd_pct", *sorted(want)):
         if record[key] != want[key]:
             return f"{key} is {record[key]!r} here, {want[key]!r} in {INDEX}"
-    return None if data == record_json(want) else f"bytes differ from its {INDEX} row written as JSON"
+    return None if data == record_json(row) else f"bytes differ from its {INDEX} row written as JSON"
 
 
 def _check_end(path: Path, raw: BinaryIO, end: int, seen: dict[str, None], report: Report) -> None:

@@ -19,7 +19,8 @@ from appdgen.sources import KITTI_DAY, KITTI_DRIVE, image_size
 CALIBRATION = "calib_cam_to_cam.txt"
 _FOLDER = re.compile(f"({KITTI_DRIVE})_(extract|sync)")  # a drive's unrectified (_extract) or rectified folder
 _RULE = re.compile(f"{KITTI_DRIVE}|{KITTI_DAY}")
-_UNSAFE = re.compile(r"[\s#]")  # an image list splits on whitespace and cuts at '#'
+_NEEDS_TAB = re.compile(r"[\s#]")  # a 'PATH SPLIT' line splits on whitespace and cuts at '#': use PATH<TAB>SPLIT
+_UNLISTABLE = re.compile(r"[\t\n\r\0]")  # no list line can hold these
 
 
 @dataclass(frozen=True)
@@ -96,14 +97,17 @@ def list_line(image: Path, folder: Path) -> str:
         text = absolute.relative_to(os.path.abspath(folder)).as_posix()
     except ValueError:
         text = absolute.as_posix()
-    if _UNSAFE.search(text):
-        raise AppdgenError(f"{image}: image lists cannot hold paths with spaces or '#'; link the dataset elsewhere")
+    if _UNLISTABLE.search(text) or text.lstrip().startswith("#"):
+        raise AppdgenError(f"{image}: image lists cannot hold paths with tabs or line breaks, or starting with "
+                           f"'#'; link the dataset elsewhere")
     return text
 
 
 def write_list(path: Path, entries: list[tuple[Path, str]]) -> None:
-    """Write 'PATH SPLIT' lines atomically (AppdgenError naming the list when it cannot be written)."""
-    text = "".join(f"{list_line(image, path.parent)} {split}\n" for image, split in entries)
+    """Write 'PATH SPLIT' lines ('PATH<TAB>SPLIT' for paths with spaces or '#') atomically (AppdgenError naming the
+    list when it cannot be written)."""
+    lines = [(list_line(image, path.parent), split) for image, split in entries]
+    text = "".join(f"{line}{chr(9) if _NEEDS_TAB.search(line) else ' '}{split}\n" for line, split in lines)
     write_file(path, text.encode("utf-8"))
 
 

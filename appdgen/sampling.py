@@ -2,9 +2,11 @@
 
 Each sample draws its target APPD first, then a random direction in the parameter box (extended to the box's
 boundary), and solves for the scale along that ray whose APPD hits the target (regula falsi, Illinois variant,
-on [0, 1] where APPD(0) = 0). Directions that cannot reach the target inside the box are redrawn. The search
-evaluates APPD on a coarse output grid (midpoint rule) with a coarser crop; the stored label is later computed
-on the full output grid. All randomness of sample i comes from numpy's SeedSequence([seed, i]).
+on [0, 1] where APPD(0) = 0). Directions that cannot reach the target inside the box, whose search does not
+converge, or (with labels=True) whose stored label would exceed appd_max are redrawn. The search evaluates APPD
+on a coarse output grid (midpoint rule) with a coarser crop; the stored label is the full output grid's. All
+randomness of sample i comes from numpy's SeedSequence([seed, i]). The parameters are the reference's lens
+model's (Calibration.param_names): fx, fy, cx, cy, then its coefficients.
 """
 from __future__ import annotations
 
@@ -14,20 +16,55 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from appdgen.calibration import DISTORTION, FOCAL, PARAMS, PRINCIPAL, Calibration
-from appdgen.crop import valid_region
+from appdgen.appd import appd_px, px_to_pct
+from appdgen.calibration import DEFAULT_MODEL, DISTORTION, FOCAL, PRINCIPAL, Calibration
+from appdgen.crop import GRID_NODES, Crop, valid_region
 from appdgen.distortion import distort_to_pixels
 from appdgen.errors import AppdgenError
+from appdgen.maps import Rectification, rectify
 
-#: The paper's ranges: (low, high) as fractions of the reference value.
+#: The paper's ranges for the radtan model: (low, high) as fractions of the reference value.
 PAPER_RANGES: dict[str, tuple[float, float]] = {
     **{name: (-0.05, 0.20) for name in FOCAL},
     **{name: (-0.05, 0.05) for name in PRINCIPAL},
     **{name: (-0.15, 0.15) for name in DISTORTION},
 }
+COEFFICIENT_RANGE = (-0.15, 0.15)  # relative, for every non-zero lens coefficient
+#: Absolute (low, high) bounds for a lens coefficient whose reference value is 0, per model (radtan keeps the
+#: paper's rule: a relative range around 0 is empty). About 15 % of a typical calibrated value, signs kept
+#: where the model needs them (ds/eucm alpha ≥ 0, eucm beta > 0).
+ZERO_RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "rational": {**{k: (-0.01, 0.01) for k in ("k1", "k2", "k3", "k4", "k5", "k6")},
+                 **{k: (-0.001, 0.001) for k in ("p1", "p2", "s1", "s2", "s3", "s4")}},
+    "kb4": {k: (-0.001, 0.001) for k in ("k1", "k2", "k3", "k4")},
+    "ds": {"xi": (-0.05, 0.05), "alpha": (0.0, 0.05)},
+    "eucm": {"alpha": (0.0, 0.05), "beta": (0.0, 0.15)},
+}
 DEFAULT_APPD_MAX = 1.0  # % of the raw diagonal
 SEARCH_NODES = 257  # crop grid of the search: ~1e-4 px, a third of the full crop's cost
 COARSE_COLUMNS = 48  # coarse output grid of the search: 48 × 18 for KITTI
+QUICK_RAYS = 8  # rays check_reachable tries before searching for the maximum
+REACH_RAYS = 64  # random rays of the reachability search (plus 4 corners and coordinate ascent)
+CAP_RETRIES = 3  # directions whose label exceeds appd_max before the target is lowered just below it
+
+
+class UnreachableError(AppdgenError):
+    """The ranges cannot reach a target APPD: an option problem, fixed by other options (and --overwrite)."""
+
+
+def check_max_fov(max_fov: float | None) -> None:
+    """Refuse a --max-fov (degrees) outside (0, 180)."""
+    if max_fov is None:
+        return
+    if not (isinstance(max_fov, (int, float)) and 0 < max_fov < 180):
+        raise AppdgenError(f"--max-fov {max_fov!r}: must be a horizontal field of view in (0, 180) degrees")
+
+
+def valid_crop(calib: Calibration, max_fov: float | None = None, nodes: int = GRID_NODES,
+               check: bool = True) -> Crop:
+    """The crop R of a calibration under an optional horizontal field-of-view bound (degrees): the one place the
+    sampler and the build ask for a crop, so Θ* and every Θm get the same rule."""
+    return valid_region(calib, nodes, check, max_fov=max_fov)
 
 
 @dataclass(frozen=True)
@@ -50,18 +87,37 @@ class Range:
 
 
 def paper_ranges() -> dict[str, Range]:
-    """The paper's ranges: focal −5 %…+20 %, principal point ±5 %, distortion ±15 % (relative)."""
+    """The paper's ranges (radtan): focal −5 %…+20 %, principal point ±5 %, distortion ±15 % (relative)."""
     return {name: Range(lo, hi) for name, (lo, hi) in PAPER_RANGES.items()}
 
 
-def parse_ranges(text: str | None, base: dict[str, Range] | None = None) -> dict[str, Range]:
-    """'fx=-5%:20%,k3=-0.01:0.01' over the defaults; '%' marks relative bounds, bare numbers absolute units."""
-    ranges = dict(base or paper_ranges())
+def default_ranges(reference: Calibration) -> dict[str, Range]:
+    """Default ranges over a reference's parameters: focal −5 %…+20 %, principal point ±5 %, non-zero coefficients
+    ±15 % (relative); zero coefficients ZERO_RANGES of their model (absolute; radtan: none, as the paper)."""
+    if reference.model == DEFAULT_MODEL:
+        return paper_ranges()
+    zero = ZERO_RANGES.get(reference.model, {})
+    ranges = {name: Range(*PAPER_RANGES[name]) for name in (*FOCAL, *PRINCIPAL)}
+    for name, value in zip(reference.param_names[4:], reference.coeffs):
+        ranges[name] = Range(*COEFFICIENT_RANGE) if value != 0 or name not in zero else Range(*zero[name], False)
+    return ranges
+
+
+def parse_ranges(text: str | None, reference: Calibration | None = None,
+                 base: dict[str, Range] | None = None) -> dict[str, Range]:
+    """'fx=-5%:20%,k3=-0.01:0.01' over the defaults; '%' marks relative bounds, bare numbers absolute units.
+
+    Names are the reference's parameters (radtan's when no reference is given).
+    """
+    ranges = dict(base or (default_ranges(reference) if reference is not None else paper_ranges()))
+    names = reference.param_names if reference is not None else tuple(PAPER_RANGES)
     for item in filter(None, (part.strip() for part in (text or "").split(","))):
         name, sep, spec = item.partition("=")
         low_text, colon, high_text = spec.partition(":")
-        if name not in PARAMS or not sep or not colon:
-            raise AppdgenError(f"--ranges {item!r}: expected NAME=LOW:HIGH with NAME one of {', '.join(PARAMS)}")
+        if name not in names or not sep or not colon:
+            model = reference.model if reference is not None else DEFAULT_MODEL
+            raise AppdgenError(f"--ranges {item!r}: expected NAME=LOW:HIGH with NAME a parameter of the {model} "
+                               f"model: {', '.join(names)}")
         relative = low_text.strip().endswith("%") and high_text.strip().endswith("%")
         if relative != (low_text.strip().endswith("%") or high_text.strip().endswith("%")):
             raise AppdgenError(f"--ranges {item!r}: give both bounds in % (relative) or both in units (absolute)")
@@ -77,7 +133,10 @@ def parse_ranges(text: str | None, base: dict[str, Range] | None = None) -> dict
 
 @dataclass(frozen=True)
 class Draw:
-    """One sampled calibration with its search bookkeeping (target and estimate in % of the diagonal)."""
+    """One sampled calibration with its search bookkeeping (target and estimate in % of the diagonal).
+
+    With Sampler(labels=True), `rect` is its full-size rectification and `appd_px` its stored label (raw px).
+    """
 
     index: int
     calib: Calibration
@@ -86,6 +145,8 @@ class Draw:
     estimate_pct: float
     evaluations: int
     seconds: float
+    rect: Rectification | None = None
+    appd_px: float | None = None
 
 
 @dataclass
@@ -93,20 +154,30 @@ class Sampler:
     """Draws calibrations around a reference so that APPD labels are about uniform over [0, appd_max]."""
 
     reference: Calibration
-    ranges: dict[str, Range] = field(default_factory=paper_ranges)
+    ranges: dict[str, Range] | None = None  # default_ranges(reference)
     appd_max: float = DEFAULT_APPD_MAX
     zero_fraction: float = 0.01
     size: tuple[int, int] | None = None
     tolerance: float = 0.01  # of appd_max: a fifth of a 5 % histogram bin
     max_directions: int = 200
+    max_fov: float | None = None  # degrees: bounds the horizontal field of view of every crop
+    labels: bool = False  # compute each draw's full-grid label and accept only labels <= appd_max
+    _reach: tuple[float, np.ndarray] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (self.appd_max > 0 and math.isfinite(self.appd_max)):
             raise AppdgenError(f"--appd-max {self.appd_max!r}: must be a positive number (% of the diagonal)")
         if not 0 <= self.zero_fraction <= 1:
             raise AppdgenError(f"--zero-fraction {self.zero_fraction!r}: must be in [0, 1]")
-        values = np.array([getattr(self.reference, n) for n in PARAMS])
-        bounds = [self.ranges[n].offsets(v) for n, v in zip(PARAMS, values)]
+        check_max_fov(self.max_fov)
+        self.ranges = self.ranges if self.ranges is not None else default_ranges(self.reference)
+        self._names = self.reference.param_names
+        odd = sorted(set(self.ranges) ^ set(self._names))
+        if odd:
+            raise AppdgenError(f"--ranges: {', '.join(odd)} not matching the {self.reference.model} model's "
+                               f"parameters ({', '.join(self._names)})")
+        values = np.array([self.reference.params()[n] for n in self._names])
+        bounds = [self.ranges[n].offsets(v) for n, v in zip(self._names, values)]
         self._base = values
         self._low = np.array([b[0] for b in bounds])
         self._high = np.array([b[1] for b in bounds])
@@ -120,13 +191,18 @@ class Sampler:
         self._out_size = (w, h)
         self._ref_points = self._positions(self.reference)
         self._jacobian = self._position_jacobian()
+        self.reference_rect = rectify(self.reference, self._out_size, self._crop(self.reference)) if self.labels else None
+
+    def _crop(self, calib: Calibration, nodes: int = GRID_NODES, check: bool = True) -> Crop:
+        """The crop of a calibration under this sampler's field-of-view bound."""
+        return valid_crop(calib, self.max_fov, nodes, check)
 
     def _position_jacobian(self) -> np.ndarray:
-        """∂(coarse M̂ positions)/∂(parameter) at the reference, by forward differences (9 × 2 × rows × cols)."""
-        jacobian = np.zeros((len(PARAMS), *self._ref_points.shape))
+        """∂(coarse M̂ positions)/∂(parameter) at the reference, by forward differences (P × 2 × rows × cols)."""
+        jacobian = np.zeros((len(self._names), *self._ref_points.shape))
         for j, width in enumerate(self._high - self._low):
             if width > 0:
-                step = np.zeros(len(PARAMS))
+                step = np.zeros(len(self._names))
                 step[j] = 1e-3 * width
                 jacobian[j] = (self._positions(self._calibration(step)) - self._ref_points) / step[j]
         return jacobian
@@ -143,11 +219,11 @@ class Sampler:
 
     def zero_ranges(self) -> list[str]:
         """Parameters whose range is empty (e.g. relative ranges around a reference value of 0)."""
-        return [n for n, lo, hi in zip(PARAMS, self._low, self._high) if lo == hi == 0]
+        return [n for n, lo, hi in zip(self._names, self._low, self._high) if lo == hi == 0]
 
     def _positions(self, calib: Calibration, check: bool = True) -> np.ndarray:
         """Raw-pixel positions of M̂ at the coarse grid (2 × rows × cols)."""
-        k = valid_region(calib, SEARCH_NODES, check).camera_matrix(self._out_size)
+        k = self._crop(calib, SEARCH_NODES, check).camera_matrix(self._out_size)
         gx, gy = self._grid
         return np.stack(distort_to_pixels((gx - k[0, 2]) / k[0, 0], (gy - k[1, 2]) / k[1, 1], calib))
 
@@ -158,7 +234,7 @@ class Sampler:
 
     def _calibration(self, offsets: np.ndarray) -> Calibration:
         """The reference moved by parameter offsets (parameter units)."""
-        return self.reference.replace(**dict(zip(PARAMS, (self._base + offsets).tolist())))
+        return self.reference.replace(**dict(zip(self._names, (self._base + offsets).tolist())))
 
     def _direction(self, rng: np.random.Generator) -> np.ndarray:
         """A uniform point of the box, pushed out along its ray to the box's boundary (parameter units)."""
@@ -166,34 +242,109 @@ class Sampler:
         reach = np.where(d > 0, d / np.where(self._high > 0, self._high, 1), d / np.where(self._low < 0, self._low, -1))
         return d / reach.max() if reach.max() > 0 else d
 
+    def reach(self) -> tuple[float, np.ndarray]:
+        """About the largest coarse APPD (% of the diagonal) inside the box, and the offsets where it was found.
+
+        A cheap search: REACH_RAYS of the sampler's own rays (to the box's boundary) and the four corners the
+        linearised APPD ranks first, then coordinate ascent moving one parameter at a time to its low end, 0 or
+        its high end. APPD need not peak at a corner: the crop reacts to the parameters together.
+        """
+        if self._reach is None:
+            free = np.flatnonzero(self._high - self._low > 0)
+            rng = np.random.default_rng(0)
+            choice = (np.arange(2 ** free.size)[:, None] >> np.arange(free.size)) & 1 if free.size <= 12 else \
+                rng.integers(0, 2, (4096, free.size))
+            corners = np.where(choice == 1, self._high[free], self._low[free])
+            moved = np.tensordot(corners, self._jacobian[free], axes=1)  # n × 2 × rows × cols
+            linear = np.hypot(moved[:, 0], moved[:, 1]).mean(axis=(1, 2))
+            starts = [self._direction(rng) for _ in range(REACH_RAYS)]
+            for c in np.argsort(-linear, kind="stable")[:4]:
+                starts.append(np.zeros(len(self._names)))
+                starts[-1][free] = corners[c]
+            best, offsets = 0.0, np.zeros(len(self._names))
+            for trial in starts:
+                best, offsets = self._better(trial, best, offsets)
+            for _ in range(3):
+                start = best
+                for j in free:
+                    for value in (self._low[j], 0.0, self._high[j]):
+                        trial = offsets.copy()
+                        trial[j] = value
+                        best, offsets = self._better(trial, best, offsets)
+                if best <= start:
+                    break
+            self._reach = (best, offsets)
+        return self._reach
+
+    def _better(self, trial: np.ndarray, best: float, offsets: np.ndarray) -> tuple[float, np.ndarray]:
+        """(APPD %, offsets) of the trial when it is valid and beats the best so far, else the best so far."""
+        point = self._evaluate(trial) if not np.array_equal(trial, offsets) else None
+        return (point[1], trial) if point is not None and point[1] > best else (best, offsets)
+
+    def check_reachable(self) -> None:
+        """Refuse an --appd-max the ranges cannot reach (before anything is written), with the reachable maximum."""
+        rng = np.random.default_rng(0)
+        for _ in range(QUICK_RAYS):  # usually one of the sampler's own rays already reaches it: no search needed
+            point = self._evaluate(self._direction(rng))
+            if point is not None and point[1] >= self.appd_max:
+                return
+        largest = self.reach()[0]
+        if largest >= self.appd_max:
+            return
+        why = ""
+        if not any(self.reference.coeffs):
+            why = (" (without lens distortion a focal or principal-point change moves the crop with the image, "
+                   "so only the coefficients' ranges give APPD)")
+        raise UnreachableError(f"--appd-max {self.appd_max:g}: the largest APPD inside these ranges is about "
+                               f"{largest:.3g} % of the diagonal{why}; lower --appd-max or widen --ranges")
+
     def draw(self, seed: int, index: int) -> Draw:
         """Sample `index` of a build with this seed: the same calibration whatever the worker or order."""
         start = time.perf_counter()
         rng = np.random.default_rng([seed, index])
         if rng.random() < self.zero_fraction:
-            return Draw(index, self.reference, True, 0.0, 0.0, 0, time.perf_counter() - start)
+            ref = self.reference_rect
+            return Draw(index, self.reference, True, 0.0, 0.0, 0, time.perf_counter() - start, ref,
+                        0.0 if ref is not None else None)
         target = rng.uniform(0.0, self.appd_max)
-        evaluations = 0
-        for _ in range(self.max_directions):
-            direction = self._direction(rng)
+        evaluations, capped = 0, 0
+        for attempt in range(self.max_directions + 1):
+            # After max_directions random rays, the ray to the reachable maximum (which check_reachable vouches for).
+            direction = self._direction(rng) if attempt < self.max_directions else self.reach()[1]
             found, used = self._solve(direction, target)
             evaluations += used
-            if found is not None and self._is_valid(found[0]):
-                calib, estimate = found
-                return Draw(index, calib, False, target, estimate, evaluations, time.perf_counter() - start)
-        raise AppdgenError(
+            if found is None:
+                continue
+            calib, estimate = found
+            label = self._label(calib, estimate)
+            if label is None:
+                continue
+            if label[1] > self.appd_max:
+                capped += 1
+                if capped >= CAP_RETRIES:  # the target sits at the very top: aim just below the cap
+                    target = min(target, self.appd_max * (1.0 - 2.0 * self.tolerance))
+                continue
+            return Draw(index, calib, False, target, estimate, evaluations, time.perf_counter() - start, *label[2:])
+        raise UnreachableError(
             f"--appd-max {self.appd_max:g}: after {self.max_directions} directions none reached APPD "
             f"{target:.3f} % inside the ranges; lower --appd-max or widen --ranges"
         )
 
-    @staticmethod
-    def _is_valid(calib: Calibration) -> bool:
-        """Whether the search's answer passes the crop's full guard (the searches skip it)."""
+    def _label(self, calib: Calibration, estimate: float) -> tuple | None:
+        """(calib, label %, rect, label px) with the crop's full guard, or None when that guard refuses calib.
+
+        With labels=True the label is the full output grid's APPD and rect its rectification; otherwise the
+        coarse estimate stands in for it (and rect, px are None).
+        """
         try:
-            valid_region(calib, SEARCH_NODES)
-            return True
+            if not self.labels:
+                self._crop(calib, SEARCH_NODES)
+                return calib, estimate, None, None
+            rect = rectify(calib, self._out_size, self._crop(calib))
         except AppdgenError:
-            return False
+            return None
+        distance = appd_px(self.reference_rect, rect)
+        return calib, px_to_pct(distance, self.reference), rect, distance
 
     def _evaluate(self, offsets: np.ndarray) -> tuple[Calibration, float] | None:
         """(calibration, coarse APPD %) for offsets, or None when that calibration is invalid (fold-over)."""
@@ -204,7 +355,8 @@ class Sampler:
             return None
 
     def _solve(self, direction: np.ndarray, target: float) -> tuple[tuple[Calibration, float] | None, int]:
-        """Scale along the ray whose coarse APPD is the target (Illinois regula falsi); None when out of reach."""
+        """Scale along the ray whose coarse APPD is the target (Illinois regula falsi); None when out of reach
+        or not within tolerance after 30 evaluations."""
         edge = self._evaluate(direction)
         if edge is None or edge[1] < target:
             return None, 1
@@ -225,4 +377,4 @@ class Sampler:
                 a, fa = lam, f
                 fb, side = (fb / 2, side) if side == 1 else (fb, 1)
             lam = b - fb * (b - a) / (fb - fa)
-        return best, evaluations
+        return (best if abs(best[1] - target) <= tolerance else None), evaluations

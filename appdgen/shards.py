@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 import io
-import json
 import tarfile
+from collections.abc import Sequence
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -11,30 +11,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from appdgen.atomic import atomic_stream, atomic_write
-
-SHARD_PATTERN = "shard-{:06d}.tar"
-PARTS_DIR = ".parts"
-
-#: labels.parquet columns: units in the names or below (pixels, % of the raw diagonal).
-LABEL_SCHEMA = pa.schema([
-    ("key", pa.string()), ("shard", pa.string()), ("raw_path", pa.string()), ("split", pa.string()),
-    ("camera", pa.string()), ("sample_index", pa.int64()), ("is_reference", pa.bool_()),
-    ("fx", pa.float64()), ("fy", pa.float64()), ("cx", pa.float64()), ("cy", pa.float64()),
-    ("k1", pa.float64()), ("k2", pa.float64()), ("p1", pa.float64()), ("p2", pa.float64()), ("k3", pa.float64()),
-    ("new_fx", pa.float64()), ("new_fy", pa.float64()), ("new_cx", pa.float64()), ("new_cy", pa.float64()),
-    ("width", pa.int32()), ("height", pa.int32()), ("appd_px", pa.float64()), ("appd_pct", pa.float64()),
-    ("sha256", pa.string()),
-])
-
-
-def shard_name(index: int) -> str:
-    """File name of shard `index`."""
-    return SHARD_PATTERN.format(index)
-
-
-def sample_key(index: int) -> str:
-    """WebDataset key of sample `index` (sorts in sample order)."""
-    return f"{index:09d}"
+from appdgen.layout import STATS_KEY, ShardStats, label_schema
 
 
 class TarShard:
@@ -47,7 +24,8 @@ class TarShard:
     def __enter__(self) -> "TarShard":
         self._stream = self._stack.enter_context(atomic_stream(self.path))
         # USTAR with zeroed times/owners: the same samples always give the same bytes.
-        self._tar = tarfile.open(fileobj=self._stream, mode="w", format=tarfile.USTAR_FORMAT)
+        # One copy per member (tarfile's default copies a 1 MB image in 64 chunks of 16 KB).
+        self._tar = tarfile.open(fileobj=self._stream, mode="w", format=tarfile.USTAR_FORMAT, copybufsize=1 << 24)
         return self
 
     def add(self, name: str, data: bytes) -> None:
@@ -65,24 +43,27 @@ class TarShard:
         self._stack.__exit__(*exc_info)
 
 
-def record_json(record: dict) -> bytes:
-    """A sample's `<key>.json` member: its label row, keys sorted, floats in full precision."""
-    return json.dumps(record, sort_keys=True, separators=(",", ":")).encode("utf-8")
+def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: ShardStats) -> None:
+    """One shard's label rows (columns of label_schema(params)) and its stats as a Parquet file, atomically."""
+    schema = label_schema(params)
+    columns = [pa.array([r[n] for r in rows], f.type) for n, f in zip(schema.names, schema)]
+    _write_table(path, pa.Table.from_arrays(columns, schema=schema.with_metadata({STATS_KEY: stats.to_json()})))
 
 
-def write_fragment(path: Path, rows: list[dict]) -> None:
-    """One shard's label rows as a Parquet file, atomically."""
-    _write_table(path, pa.Table.from_pylist(rows, schema=LABEL_SCHEMA))
+def read_stats(path: Path) -> ShardStats:
+    """The ShardStats stored with a shard's fragment."""
+    return ShardStats.from_json(pq.read_schema(path).metadata[STATS_KEY])
 
 
-def read_fragment(path: Path) -> pa.Table:
-    """One shard's label rows."""
-    return pq.read_table(path, schema=LABEL_SCHEMA)
+def read_fragment(path: Path, schema: pa.Schema) -> pa.Table:
+    """One shard's label rows, read with their schema."""
+    return pq.read_table(path, schema=schema)
 
 
-def write_index(path: Path, fragments: list[Path]) -> int:
+def write_index(path: Path, fragments: list[Path], params: Sequence[str]) -> int:
     """Concatenate shard fragments in order into labels.parquet, atomically; returns the row count."""
-    table = pa.concat_tables([read_fragment(f) for f in fragments]) if fragments else LABEL_SCHEMA.empty_table()
+    schema = label_schema(params)
+    table = pa.concat_tables([read_fragment(f, schema) for f in fragments]) if fragments else schema.empty_table()
     _write_table(path, table)
     return table.num_rows
 

@@ -18,7 +18,11 @@ KITTI_DRIVE = KITTI_DAY + r"_drive_\d{4}"  # a drive of that day, e.g. 2011_09_2
 _DAY = re.compile(f"({KITTI_DAY})")
 _DRIVE = re.compile(f"({KITTI_DRIVE})")
 _KITTI_CAMERA = re.compile(r"image_(\d{2})")
+_PNG_START = b"\x89PNG\r\n\x1a\n"
 _PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the empty IEND chunk every complete PNG ends with
+_PNG_CHANNELS = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}  # IHDR colour type → channels (3: palette, read as colour)
+_JPEG_START, _JPEG_END = b"\xff\xd8", b"\xff\xd9"
+_JPEG_TAIL = 1024  # bytes searched for the end-of-image marker (some writers append a few bytes after it)
 
 
 @dataclass(frozen=True)
@@ -55,24 +59,37 @@ def list_images(spec: str, split_by: str = "none") -> list[RawImage]:
 
 
 def _read_list(path: Path, split_by: str) -> list[RawImage]:
-    """Lines `path [split]` of a list file; relative paths are relative to the list's folder."""
+    """Lines `PATH [SPLIT]` (whitespace-separated) or `PATH<TAB>SPLIT` (a path holding spaces or '#') of a list
+    file; relative paths are relative to the list's folder."""
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise AppdgenError(f"{path}: cannot read image list ({exc})") from None
     images = []
     for number, line in enumerate(lines, 1):
-        fields = line.split("#", 1)[0].split()
+        fields = _list_fields(line, f"{path}:{number}")
         if not fields:
             continue
-        if "\0" in line:  # no file name holds one; the OS would refuse it later with a ValueError
-            raise AppdgenError(f"{path}:{number}: NUL byte in the line")
-        if len(fields) > 2:
-            raise AppdgenError(f"{path}:{number}: expected 'PATH [SPLIT]', got {line.strip()!r}")
         image = Path(fields[0]) if Path(fields[0]).is_absolute() else path.parent / fields[0]
         split = fields[1] if len(fields) == 2 else _split_of(Path(fields[0]), split_by)
         images.append(RawImage(image, fields[0], split))
     return images
+
+
+def _list_fields(line: str, where: str) -> list[str]:
+    """[PATH] or [PATH, SPLIT] of one list line; [] for blank and comment lines."""
+    if "\0" in line:  # no file name holds one; the OS would refuse it later with a ValueError
+        raise AppdgenError(f"{where}: NUL byte in the line")
+    if line.lstrip().startswith("#"):
+        return []
+    if "\t" in line:  # tab-separated: the path is taken verbatim, spaces and '#' included
+        fields = [f for f in line.split("\t") if f.strip()]
+        fields[1:] = [f.strip() for f in fields[1:]]
+    else:
+        fields = line.split("#", 1)[0].split()
+    if len(fields) > 2 or (len(fields) == 2 and not fields[1]):
+        raise AppdgenError(f"{where}: expected 'PATH [SPLIT]' or 'PATH<TAB>SPLIT', got {line.strip()!r}")
+    return fields
 
 
 def _split_of(relative: Path, split_by: str) -> str:
@@ -102,60 +119,110 @@ def kitti_camera(images: list[RawImage]) -> str | None:
     return cameras.pop() if len(cameras) == 1 else None
 
 
+@dataclass(frozen=True)
+class ImageHeader:
+    """What a raw image's header says: size (pixels) and channels (1 grey, 3 colour, 2 or 4 with alpha)."""
+
+    width: int
+    height: int
+    channels: int
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return self.width, self.height
+
+
 def image_size(path: Path) -> tuple[int, int]:
-    """(width, height) in pixels from the PNG/JPEG header, else by decoding; AppdgenError naming the file."""
+    """(width, height) in pixels from the image's header; AppdgenError naming the file."""
+    return image_header(path).size
+
+
+def image_header(path: Path) -> ImageHeader:
+    """Size and channels from the PNG/JPEG header (else by decoding), after check_complete; errors name the file."""
+    check_complete(path)
     try:
         with open(path, "rb") as handle:
             head = handle.read(32)
-            if head.startswith(b"\x89PNG\r\n\x1a\n") and head[12:16] == b"IHDR":
-                # A cut-off copy has a good header but fails to decode mid-build: refuse it before --out is touched.
-                handle.seek(-len(_PNG_END), 2)
-                if handle.read() != _PNG_END:
-                    raise AppdgenError(f"{path}: truncated PNG (no IEND chunk at its end)")
-                return struct.unpack(">II", head[16:24])
-            if head.startswith(b"\xff\xd8"):
-                size = _jpeg_size(handle)
-                if size:
-                    return size
+            if head.startswith(_PNG_START) and head[12:16] == b"IHDR":
+                width, height = struct.unpack(">II", head[16:24])
+                return ImageHeader(width, height, _PNG_CHANNELS.get(head[25], 0))
+            if head.startswith(_JPEG_START):
+                header = _jpeg_header(handle)
+                if header:
+                    return header
     except OSError as exc:
         raise AppdgenError(f"{path}: cannot read image ({exc.strerror or exc})") from None
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise AppdgenError(f"{path}: not a readable image")
-    return image.shape[1], image.shape[0]
+    return ImageHeader(image.shape[1], image.shape[0], 1 if image.ndim == 2 else image.shape[2])
 
 
-def _jpeg_size(handle) -> tuple[int, int] | None:
-    """Size from a JPEG's first start-of-frame marker, or None when the header is odd."""
+def check_complete(path: Path) -> None:
+    """Refuse a PNG without its closing IEND chunk or a JPEG without its end-of-image marker: a cut-off copy has
+    a good header and decodes without error, the missing rows grey."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(8)
+            size = handle.seek(0, 2)
+            if head.startswith(_PNG_START):
+                handle.seek(max(size - len(_PNG_END), 0))
+                if handle.read() != _PNG_END:
+                    raise AppdgenError(f"{path}: truncated PNG (no IEND chunk at its end)")
+            elif head.startswith(_JPEG_START):
+                handle.seek(max(size - _JPEG_TAIL, 0))
+                if _JPEG_END not in handle.read():
+                    raise AppdgenError(f"{path}: truncated JPEG (no end-of-image marker in its last {_JPEG_TAIL} "
+                                       f"bytes)")
+    except OSError as exc:
+        raise AppdgenError(f"{path}: cannot read image ({exc.strerror or exc})") from None
+
+
+def _jpeg_header(handle) -> ImageHeader | None:
+    """Size and components from a JPEG's first start-of-frame marker, or None when the header is odd."""
     handle.seek(2)
     while True:
         marker = handle.read(2)
         if len(marker) < 2 or marker[0] != 0xFF:
             return None
         if 0xC0 <= marker[1] <= 0xCF and marker[1] not in (0xC4, 0xC8, 0xCC):
-            data = handle.read(7)
-            return (struct.unpack(">H", data[5:7])[0], struct.unpack(">H", data[3:5])[0]) if len(data) == 7 else None
+            data = handle.read(8)  # length, precision, height, width, components
+            if len(data) < 8:
+                return None
+            return ImageHeader(struct.unpack(">H", data[5:7])[0], struct.unpack(">H", data[3:5])[0], data[7])
         length = handle.read(2)
         if len(length) < 2:
             return None
         handle.seek(struct.unpack(">H", length)[0] - 2, 1)
 
 
-def check_sizes(images: list[RawImage], size: tuple[int, int], skip_bad: bool) -> tuple[list[RawImage], list[str]]:
-    """Images of the calibration's raw size; the others refused (first named) or, with skip_bad, dropped."""
+def check_images(images: list[RawImage], size: tuple[int, int], skip_bad: bool) -> tuple[list[RawImage], list[dict]]:
+    """Images of the calibration's raw size, complete, grey or colour; the others refused (first named) or, with
+    skip_bad, dropped and returned as {"path", "problem"} (cheap: headers and file ends only)."""
     kept, dropped = [], []
     for image in images:
         try:
-            actual = image_size(image.path)
-            problem = None if actual == size else f"is {actual[0]}x{actual[1]}, the calibration {size[0]}x{size[1]}"
+            header = image_header(image.path)
+            problem = _header_problem(header, size)
         except AppdgenError as exc:
             problem = str(exc).split(": ", 1)[-1]
         if problem is None:
             kept.append(image)
         elif skip_bad:
-            dropped.append(f"{image.path}: {problem}")
+            dropped.append({"path": str(image.path), "problem": problem})
         else:
             raise AppdgenError(f"{image.path}: {problem} (use --skip-bad to skip such images)")
     if not kept:
-        raise AppdgenError(f"no usable image left: {dropped[0] if dropped else 'none given'}")
+        first = f"{dropped[0]['path']}: {dropped[0]['problem']}" if dropped else "none given"
+        raise AppdgenError(f"no usable image left: {first}")
     return kept, dropped
+
+
+def _header_problem(header: ImageHeader, size: tuple[int, int]) -> str | None:
+    """Why an image with this header cannot be a raw image of a camera of `size`, or None."""
+    if header.size != size:
+        return f"is {header.width}x{header.height}, the calibration {size[0]}x{size[1]}"
+    if header.channels not in (1, 3):
+        return (f"has {header.channels} channels (alpha or CMYK); appdgen reads grey (1) or colour (3) images")
+    return None

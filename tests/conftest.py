@@ -82,7 +82,7 @@ def loky_build(tmp_path_factory: pytest.TempPathFactory, setup: Setup) -> Path:
 
 @pytest.fixture(scope="session")
 def interrupted_build(setup: Setup, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The standard build stopped with shards 0 and 1 done: the disk 'fills up' at the 8th write (shard 2's tar)."""
+    """The standard build stopped with shards 0 and 1 done: the disk 'fills up' at the 6th write (shard 2's tar)."""
     out = tmp_path_factory.mktemp("interrupted") / "out"
-    assert run_with_full_disk(setup.args(out), 8).exit_code == 2
+    assert run_with_full_disk(setup.args(out), 6).exit_code == 2
     return out

@@ -20,7 +20,8 @@ from hypothesis import strategies as st
 from appdgen.build import BuildConfig, build
 from appdgen.cli import main
 from appdgen.inspection import histogram, sheet_layout, spread, verify
-from appdgen.shards import LABEL_SCHEMA
+from appdgen.calibration import PARAMS
+from appdgen.layout import label_schema
 from appdgen.sources import RawImage
 from conftest import KITTI_2011_09_26
 
@@ -103,7 +104,7 @@ def edit_index(out: Path, change: Callable[[list[dict]], None]) -> None:
     """Rewrite labels.parquet with its rows changed in place by `change`."""
     rows = pq.read_table(out / "labels.parquet").to_pylist()
     change(rows)
-    pq.write_table(pa.Table.from_pylist(rows, schema=LABEL_SCHEMA), out / "labels.parquet")
+    pq.write_table(pa.Table.from_pylist(rows, schema=label_schema(PARAMS)), out / "labels.parquet")
 
 
 # --- inspect ---------------------------------------------------------------------------------------------------
@@ -337,3 +338,22 @@ def test_verify_caps_its_output_at_20_lines(out: Path) -> None:
     text = problems(out).splitlines()
     assert len(text) == 22 and text[20] == "… and 4 more"
     assert text[21] == f"verify failed: 24 problems in {SAMPLES} samples in 3 shards ({out})"
+
+
+def test_inspect_and_verify_read_the_lens_model_from_build_json(built: Path, out: Path) -> None:
+    code, text = run("inspect", built)
+    assert "radtan lens" in text
+    assert pq.read_table(built / "labels.parquet").column("model").to_pylist() == ["radtan"] * SAMPLES
+    info = json.loads((out / "build.json").read_text())
+    info["calibration"]["model"] = "fisheye9"
+    (out / "build.json").write_text(json.dumps(info))
+    code, text = run("verify", out)
+    assert code == 1 and text.startswith("build.json: lens model 'fisheye9' is not supported"), text
+    code, text = run("inspect", out)
+    assert code == 2 and "build.json: lens model 'fisheye9' is not supported" in text
+
+
+def test_verify_reports_an_index_of_another_schema(out: Path) -> None:
+    pq.write_table(pq.read_table(out / "labels.parquet").drop_columns(["model"]), out / "labels.parquet")
+    code, text = run("verify", out)
+    assert code == 1 and text.startswith("labels.parquet: columns differ from appdgen's label schema (missing model)")

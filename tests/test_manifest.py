@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from appdgen.cli import main
 from appdgen.errors import AppdgenError
-from appdgen.manifest import kitti_manifests, list_line, read_split_file, split_of
+from appdgen.manifest import kitti_manifests, list_line, read_split_file, split_of, write_list
 from appdgen.sources import list_images
 from conftest import ROOT
 
@@ -150,8 +150,20 @@ def test_unknown_drive_and_empty_trees(kitti: Path, tmp_path: Path) -> None:
 def test_paths_a_list_cannot_hold(tmp_path: Path) -> None:
     assert list_line(tmp_path / "a" / "b.png", tmp_path) == "a/b.png"
     assert list_line(tmp_path / "b.png", tmp_path / "lists") == (tmp_path / "b.png").as_posix()
-    with pytest.raises(AppdgenError, match="spaces or '#'"):
-        list_line(tmp_path / "my data" / "b.png", tmp_path)
+    for name in ("my\tdata", "#data"):
+        with pytest.raises(AppdgenError, match="tabs or line breaks, or starting with '#'"):
+            list_line(tmp_path / name / "b.png", tmp_path)
+
+
+def test_paths_with_spaces_and_hashes_go_on_tab_lines(tmp_path: Path) -> None:
+    images = [tmp_path / "my data" / "a #1.png", tmp_path / "plain" / "b.png"]
+    for image in images:
+        image.parent.mkdir(exist_ok=True)
+        image.write_bytes(b"")
+    write_list(tmp_path / "list.txt", [(images[0], "train"), (images[1], "test")])
+    assert (tmp_path / "list.txt").read_text() == "my data/a #1.png\ttrain\nplain/b.png test\n"
+    assert [(i.path, i.name, i.split) for i in list_images(str(tmp_path / "list.txt"))] == [
+        (images[0], "my data/a #1.png", "train"), (images[1], "plain/b.png", "test")]
 
 
 def test_cli_prints_the_calibration_and_build_command_per_day(kitti: Path, tmp_path: Path) -> None:

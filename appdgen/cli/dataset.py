@@ -8,6 +8,7 @@ import click
 
 from appdgen.cli.base import (
     fail_cleanly,
+    max_fov_option,
     parse_size,
     load_calibration,
     calib_option,
@@ -15,7 +16,11 @@ from appdgen.cli.base import (
     size_option,
     main,
 )
+from appdgen.distribute import BACKENDS
 from appdgen.errors import AppdgenError
+from appdgen.layout import FORMATS
+from appdgen.render import INTERPOLATIONS
+from appdgen.sources import SPLIT_BY
 
 
 VERIFY_LINES = 20  # problems printed; the rest are counted
@@ -48,40 +53,51 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
 @calib_option
 @camera_option
 @click.option("--images", "images_spec", required=True,
-              help="Raw images: a folder (recursive), a glob pattern, or a list file ('PATH [SPLIT]' per line).")
+              help="Raw images: a folder (recursive), a glob pattern, or a list file ('PATH [SPLIT]' per line, or "
+                   "'PATH<TAB>SPLIT' for paths with spaces).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--samples", type=int, default=None, help="Total samples [default: 10 per image].")
 @click.option("--per-image", type=int, default=None, help="Samples per raw image (instead of --samples).")
 @size_option
-@click.option("--format", "image_format", default="png", type=click.Choice(["png", "jpg", "npy"]), show_default=True,
-              help="Image encoding in the shards (png: compression level 1).")
-@click.option("--shard-size", default=1000, show_default=True, help="Samples per shard.")
-@click.option("--jobs", type=int, default=None, help="Parallel workers [default: all cores].")
+@click.option("--format", "image_format", default="png", type=click.Choice(list(FORMATS)), show_default=True,
+              help="Image encoding in the shards (png: compression level 1; npy: uint8 HxWx3 BGR).")
+@click.option("--shard-size", type=int, default=None,
+              help="Samples per shard [default: from --samples alone, about 64 shards of 8 to 1000 samples].")
+@click.option("--jobs", type=int, default=None,
+              help="Worker processes, as joblib's n_jobs: -1 all cores, -2 all but one, … [default: all cores].")
 @click.option("--seed", default=0, show_default=True, help="Build seed: the same seed gives the same bytes.")
 @click.option("--ranges", default=None, metavar="NAME=LO:HI,...",
-              help="Override ranges: '%' bounds are relative to the reference (fx=-5%:20%), bare ones absolute "
-                   "(k3=-0.01:0.01). Defaults: focal -5%:20%, principal point -5%:5%, distortion -15%:15%.")
-@click.option("--appd-max", default=1.0, show_default=True, help="Largest APPD label, % of the raw diagonal.")
+              help="Override ranges of the lens model's parameters: '%' bounds are relative to the reference "
+                   "(fx=-5%:20%), bare ones absolute (k3=-0.01:0.01). Defaults: focal -5%:20%, principal point "
+                   "-5%:5%, non-zero coefficients -15%:15% (zero ones: none for radtan, see the README otherwise).")
+@click.option("--appd-max", default=1.0, show_default=True,
+              help="Largest APPD label, % of the raw diagonal; refused up front when the ranges cannot reach it.")
 @click.option("--zero-fraction", default=0.01, show_default=True, help="Fraction of samples that are exactly Θ*.")
-@click.option("--interp", default="lanczos4", type=click.Choice(["nearest", "linear", "cubic", "lanczos4"]),
-              show_default=True, help="Interpolation of the remap.")
-@click.option("--split-by", default="none", type=click.Choice(["none", "parent", "day", "drive"]), show_default=True,
+@max_fov_option
+@click.option("--interp", default="lanczos4", type=click.Choice(list(INTERPOLATIONS)), show_default=True,
+              help="Interpolation of the remap.")
+@click.option("--split-by", default="none", type=click.Choice(list(SPLIT_BY)), show_default=True,
               help="Split column from the path: first folder, KITTI day, or KITTI drive (list files may name splits).")
-@click.option("--skip-bad", is_flag=True, help="Skip (and count) images of the wrong size or unreadable headers.")
-@click.option("--resume", is_flag=True, help="Finish an interrupted build in --out (same inputs and options).")
+@click.option("--skip-bad", is_flag=True,
+              help="Skip images of the wrong size, truncated, unreadable or with alpha channels, listing each in "
+                   "build.json (else the first is an error).")
+@click.option("--resume", is_flag=True,
+              help="Finish an interrupted build in --out (same options, same calibration and image files; "
+                   "any working folder).")
 @click.option("--overwrite", is_flag=True, help="Replace a previous build in --out.")
-@click.option("--backend", default="loky", type=click.Choice(["loky", "dask"]), show_default=True,
+@click.option("--backend", default="loky", type=click.Choice(list(BACKENDS)), show_default=True,
               help="Parallel backend: local processes (loky) or a Dask cluster.")
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://host:8786.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
 def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, image_format, shard_size, jobs, seed,
-          ranges, appd_max, zero_fraction, interp, split_by, skip_bad, resume, overwrite, backend, scheduler, quiet):
+          ranges, appd_max, zero_fraction, max_fov, interp, split_by, skip_bad, resume, overwrite, backend, scheduler,
+          quiet):
     """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
     from appdgen.build import BuildConfig, build as run_build
-    from appdgen.distribute import default_jobs
+    from appdgen.distribute import resolve_jobs
     from appdgen.sampling import parse_ranges
-    from appdgen.sources import check_sizes, list_images
+    from appdgen.sources import check_images, list_images
 
     if samples is not None and per_image is not None:
         raise AppdgenError("give --samples or --per-image, not both")
@@ -89,20 +105,22 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
         raise AppdgenError("give --resume or --overwrite, not both")
     if per_image is not None and per_image < 1:
         raise AppdgenError(f"--per-image {per_image}: must be at least 1")
+    workers = resolve_jobs(jobs)
     images = list_images(images_spec, split_by)
     camera = choose_camera(calib_path, camera, images)
     reference = load_calibration(calib_path, camera)
-    images, skipped = check_sizes(images, reference.size, skip_bad)
+    images, skipped = check_images(images, reference.size, skip_bad)
     total = samples if samples is not None else len(images) * (per_image if per_image is not None else 10)
     config = BuildConfig(
         reference=reference, camera=camera, calib_path=calib_path, images=tuple(images), samples=total,
         size=parse_size(size) or reference.size, image_format=image_format, shard_size=shard_size, seed=seed,
-        ranges=parse_ranges(ranges), appd_max=appd_max, zero_fraction=zero_fraction, interp=interp,
+        ranges=parse_ranges(ranges, reference), appd_max=appd_max, zero_fraction=zero_fraction, interp=interp,
+        max_fov=max_fov,
     )
-    summary = run_build(config, Path(out_dir), jobs or default_jobs(), backend, scheduler, resume, overwrite,
+    summary = run_build(config, Path(out_dir), workers, backend, scheduler, resume, overwrite,
                         progress=not quiet, command=["appdgen", *sys.argv[1:]], skipped=skipped)
     t = summary["timings"]
-    skipped_note = f", {len(skipped)} images skipped" if skipped else ""
+    skipped_note = f", {len(skipped)} images skipped (listed in build.json)" if skipped else ""
     click.echo(f"built {total} samples in {config.shards} shards ({t['shards_built']} now, {t['shards_resumed']} "
                f"resumed) in {t['wall_seconds']:.1f} s: {t['samples_per_second'] or 0:.1f} samples/s, "
                f"{t['mb_written']:.1f} MB written{skipped_note} -> {out_dir}")

@@ -1,0 +1,106 @@
+"""The output layout of a build, the one owner of its names: files, shard naming, image formats, label columns.
+
+The writer (build, shards), resume, `inspect` and `verify` all take these names from here, and so does the CLI
+for its choices. A build folder holds
+
+    OUT/shard-000000.tar …   WebDataset shards: <key>.json then <key><ext> per sample, key = 9-digit sample index
+    OUT/labels.parquet       one row per sample (label_schema)
+    OUT/build.json           the plan, counts, per-shard stats, timings, library versions
+    OUT/.parts/              only while a build runs: plan.json and per-shard stats and label fragments
+"""
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import pyarrow as pa
+
+INDEX = "labels.parquet"
+BUILD_JSON = "build.json"
+PARTS_DIR = ".parts"
+PLAN = "plan.json"
+SHARD_PATTERN = "shard-{:06d}.tar"
+SHARD_GLOB = "shard-*.tar"
+SHARD_FILE = re.compile(r"shard-\d{6,}\.tar")
+#: Names a build writes at the top of OUT besides its shards.
+OUTPUT_NAMES = (INDEX, BUILD_JSON, PARTS_DIR)
+#: --format choices → the image members' extension.
+FORMATS: dict[str, str] = {"png": ".png", "jpg": ".jpg", "npy": ".npy"}
+#: The member that is the label row minus this column (its own bytes' hash).
+HASH_COLUMN = "sha256"
+
+
+def shard_name(index: int) -> str:
+    """File name of shard `index`."""
+    return SHARD_PATTERN.format(index)
+
+
+def sample_key(index: int) -> str:
+    """WebDataset key of sample `index` (sorts in sample order)."""
+    return f"{index:09d}"
+
+
+def fragment_name(shard: int) -> str:
+    """Name under PARTS_DIR of one shard's label rows (Parquet, its ShardStats in the metadata under STATS_KEY),
+    written last: it marks the shard done."""
+    return f"{shard_name(shard)}.parquet"
+
+
+FRAGMENT_GLOB = "shard-*.tar.parquet"  # fragment_name of any shard
+STATS_KEY = b"appdgen.shard_stats"
+
+
+def label_schema(params: Sequence[str]) -> pa.Schema:
+    """labels.parquet columns for a lens model's parameters `params` (fx, fy, cx, cy, then its coefficients).
+
+    Units: parameters in raw pixels (fx…cy) or unitless (coefficients); new_* in output pixels; appd_px in raw
+    pixels, appd_pct in % of the raw diagonal.
+    """
+    return pa.schema([
+        ("key", pa.string()), ("shard", pa.string()), ("raw_path", pa.string()), ("split", pa.string()),
+        ("camera", pa.string()), ("model", pa.string()), ("sample_index", pa.int64()), ("is_reference", pa.bool_()),
+        *[(name, pa.float64()) for name in params],
+        ("new_fx", pa.float64()), ("new_fy", pa.float64()), ("new_cx", pa.float64()), ("new_cy", pa.float64()),
+        ("width", pa.int32()), ("height", pa.int32()), ("appd_px", pa.float64()), ("appd_pct", pa.float64()),
+        (HASH_COLUMN, pa.string()),
+    ])
+
+
+def member_record(row: dict) -> dict:
+    """A sample's `<key>.json` content: its label row minus the image hash."""
+    return {k: v for k, v in row.items() if k != HASH_COLUMN}
+
+
+def record_json(row: dict) -> bytes:
+    """The `<key>.json` member's bytes for a label row: member_record, keys sorted, floats in full precision."""
+    return json.dumps(member_record(row), sort_keys=True, separators=(",", ":")).encode("utf-8")
+
+
+@dataclass
+class ShardStats:
+    """What a worker reports for one finished shard (kept under PARTS_DIR until the build ends)."""
+
+    shard: int
+    file: str
+    samples: int
+    bytes: int
+    splits: dict[str, int]
+    references: int
+    evaluations: int  # APPD evaluations of the sampler's searches
+    sampler_seconds: float
+    seconds: float
+
+    def to_json(self) -> bytes:
+        """JSON bytes (stable key order)."""
+        return json.dumps(asdict(self), sort_keys=True).encode()
+
+    @classmethod
+    def from_json(cls, data: bytes | str) -> "ShardStats":
+        """Read back what to_json wrote."""
+        return cls(**json.loads(data))
+
+    def listing(self) -> dict:
+        """The shard's entry in build.json's `shards` list."""
+        return {"file": self.file, "samples": self.samples, "bytes": self.bytes, "splits": self.splits}

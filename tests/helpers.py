@@ -198,11 +198,11 @@ def run_with_full_disk(args: list[str], fail_at: int) -> Result:
         return run_cli(args)
 
 
-def sampler_draws(job: tuple[Calibration, tuple[int, int], int, range]) -> list[tuple[float, bool]]:
-    """(estimate %, is reference) of draws `indices` of `seed`, each calibration checked by the full crop."""
-    reference, size, seed, indices = job
-    sampler = Sampler(reference, size=size)
+def sampler_draws(job: tuple[Calibration, tuple[int, int], int, range, float | None]) -> list[tuple[float, bool]]:
+    """(estimate %, is reference) of draws `indices` of `seed` (max_fov in degrees), each checked by the full crop."""
+    reference, size, seed, indices, max_fov = job
+    sampler = Sampler(reference, size=size, max_fov=max_fov)
     draws = [sampler.draw(seed, i) for i in indices]
     for draw in draws:
-        valid_region(draw.calib)  # raises AppdgenError for an invalid calibration
+        valid_region(draw.calib, max_fov=max_fov)  # raises AppdgenError for an invalid calibration
     return [(d.estimate_pct, d.is_reference) for d in draws]

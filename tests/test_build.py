@@ -22,7 +22,7 @@ from appdgen.distribute import run_unordered
 from appdgen.maps import rectify
 from appdgen.sampling import Sampler
 from helpers import (Setup, assert_one_line_error, assert_same_build, check_interrupted, check_shard, kill_group,
-                     kitti_text, raw_image, run_cli, sampler_draws, spawn_cli, tree_digest, write_png)
+                     kitti_text, raw_image, run_cli, spawn_cli, tree_digest, write_png)
 
 SIZE = (87, 32)  # output size of the sampler checks: KITTI's aspect exactly
 

@@ -147,7 +147,8 @@ def summary(out: Path, bins: int = 10) -> str:
     lines = [
         f"{out}: {table.num_rows} samples in {len(counts(table['shard']))} shards, {size} {info.get('format')}, "
         f"from {len(counts(table['raw_path']))} raw images" + (f" ({skipped} skipped)" if skipped else "")
-        + f" (camera {calib.get('camera')}, {calib.get('model', DEFAULT_MODEL)} lens, of {calib.get('path')})",
+        + f" (camera {calib.get('camera')}, {calib.get('model', DEFAULT_MODEL)} lens, of {calib.get('path')})"
+        + (f", crops bounded at {info['max_fov']:g}° (--max-fov)" if info.get("max_fov") is not None else ""),
         "splits: " + ", ".join(f"{name} {n}" for name, n in counts(table["split"]).items()),
         f"reference samples (exactly the calibration, APPD 0): {pc.sum(table['is_reference']).as_py() or 0}",
         _label_line(pct, px, diagonal),

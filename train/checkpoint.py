@@ -69,3 +69,24 @@ def build_model(ckpt: dict) -> AppdNet:
 def label_mean(ckpt: dict) -> float:
     """Mean training label (APPD %): what the trivial mean predictor outputs."""
     return float(ckpt["config"]["label_mean"])
+
+
+def rectify_rule(ckpt: dict) -> dict | None:
+    """How the training build rectified raw images ({"max_fov": degrees or None, "interp": name}); None if unrecorded
+    (checkpoints from before fit recorded it, or shards without build.json)."""
+    return ckpt["config"].get("rectify")
+
+
+def describe_fov(max_fov: float | None) -> str:
+    """'crops bounded at 120° (--max-fov)' or 'unbounded crops', for messages."""
+    return "unbounded crops" if max_fov is None else f"crops bounded at {max_fov:g}° (--max-fov)"
+
+
+def rule_mismatch(ckpt: dict, rule: dict | None) -> str | None:
+    """Why shards rectified by `rule` differ from the checkpoint's training data (max_fov only), None if alike or
+    unknown."""
+    trained = rectify_rule(ckpt)
+    if trained is None or rule is None or trained.get("max_fov") == rule.get("max_fov"):
+        return None
+    return (f"the checkpoint was trained on {describe_fov(trained.get('max_fov'))}, "
+            f"these shards have {describe_fov(rule.get('max_fov'))}")

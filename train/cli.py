@@ -140,6 +140,9 @@ def summary_line(result: dict) -> str:
 @click.option("--ckpt", required=True, help="Checkpoint (.pt) written by fit.")
 @click.option("--calib", help="Calibration file: rectify raw images with it first (needs appdgen).")
 @click.option("--camera", help="Camera id inside --calib, e.g. 02.")
+@click.option("--max-fov", type=float, metavar="DEG",
+              help="Crop bound for --calib [default: the training build's max_fov, recorded by fit; a different "
+                   "value is refused, so this is for checkpoints that do not record one].")
 @click.option("--threshold", default=1.0, show_default=True,
               help="Recalibrate when the running median exceeds this APPD %.")
 @click.option("--window", default=9, show_default=True, type=click.IntRange(1), help="Running-median length (images).")
@@ -148,14 +151,15 @@ def summary_line(result: dict) -> str:
 @click.option("--csv", "as_csv", is_flag=True, help="CSV output.")
 @click.option("--json", "as_json", is_flag=True, help="JSON output.")
 @DEVICE
-def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str | None, threshold: float,
-            window: int, batch: int, resize: bool, as_csv: bool, as_json: bool, device: str) -> None:
+def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str | None, max_fov: float | None,
+            threshold: float, window: int, batch: int, resize: bool, as_csv: bool, as_json: bool,
+            device: str) -> None:
     """Predicted APPD per image of a sequence (IMAGES… or a folder), running median and verdict."""
     from train.predict import predict as run_predict
 
     if as_csv and as_json:
         raise click.UsageError("--csv and --json are exclusive")
-    preds = run_predict(ckpt, list(images), calib, camera, threshold, window, batch, resize, device)
+    preds = run_predict(ckpt, list(images), calib, camera, threshold, window, batch, resize, device, max_fov)
     rows = [asdict(p) for p in preds]
     last = preds[-1]
     summary = {"images": len(preds), "running_median": last.running_median, "threshold": threshold,

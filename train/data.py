@@ -52,6 +52,15 @@ class ShardSet:
         """Only the shards that hold the split (saves reading the others)."""
         return tuple(s for s in self.shards if s.splits.get(split, 0) > 0)
 
+    def rectify_rule(self) -> dict | None:
+        """How the build rectified raw images (max_fov in degrees, None = unbounded; interp), None without build.json.
+
+        A detector must see raw images rectified the same way at deployment, so fit records this in its checkpoint.
+        """
+        if not self.build:
+            return None
+        return {"max_fov": self.build.get("max_fov"), "interp": self.build.get("interp")}
+
 
 def open_shards(root: str | Path) -> ShardSet:
     """Read OUT/build.json; without one, fall back to OUT/shard-*.tar with unknown split counts."""

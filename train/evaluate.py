@@ -126,6 +126,9 @@ def evaluate(ckpt_path: str, shards: str, split: str, json_path: str | None = No
     ss = open_shards(shards)
     if ss.build and ss.split_count(split) == 0:
         raise TrainError(f"{ss.root}: no samples of split {split!r}")
+    mismatch = checkpoint.rule_mismatch(ckpt, ss.rectify_rule())
+    if mismatch:  # a legitimate cross-rule experiment, but not the detector's training distribution
+        print(f"evaluate: note: {mismatch}", file=sys.stderr)
     cfg = model.cfg
     spec = StreamSpec(ss.for_split(split), Selection(split), (cfg.width, cfg.height))
     _, y_true, y_pred = predict_split(model, make_loader(spec, batch, workers), dev,

@@ -30,6 +30,7 @@ def metadata(model: AppdNet, ckpt: dict) -> dict:
         "output": "float32 N: predicted APPD, % of the raw image diagonal",
         "normalization": "included in the model", "width": cfg.width, "height": cfg.height,
         "channels": cfg.channels, "label_mean": checkpoint.label_mean(ckpt), "step": int(ckpt["step"]),
+        "rectify": checkpoint.rectify_rule(ckpt),  # rectify raw images as the training build did (max_fov, interp)
     }
 
 
@@ -69,7 +70,7 @@ def to_onnx(model: AppdNet, path: Path, meta: dict) -> float | None:
         torch.onnx.export(model, (example(model),), str(path), input_names=["image"], output_names=["appd_pct"],
                           dynamic_shapes={"x": {0: batch}}, external_data=False, verbose=False)
     proto = onnx.load(str(path))
-    onnx.helper.set_model_props(proto, {k: str(v) for k, v in meta.items()})
+    onnx.helper.set_model_props(proto, {k: v if isinstance(v, str) else json.dumps(v) for k, v in meta.items()})
     onnx.save(proto, str(path))
     x = example(model, n=3, seed=1)
     got = run_onnx(path, x.numpy())

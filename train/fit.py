@@ -156,6 +156,7 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
             model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])
     config = {
         "model": model.cfg.to_dict(), "label": "appd_pct", "label_mean": label_mean, "appd_max": ss.appd_max,
+        "rectify": ss.rectify_rule(),  # predict --calib rectifies raw images by the same rule
         "data": {"shards": str(ss.root), "train": plan.train.describe(),
                  "val": plan.val.describe() if plan.val else None, "n_train": plan.n_train, "n_val": plan.n_val},
         "fit": asdict(opts), "versions": {"torch": str(torch.__version__)},  # TorchVersion is not weights_only-safe
@@ -190,6 +191,9 @@ def load_or_init(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOpt
     if (cfg.width, cfg.height) != size:
         raise TrainError(f"{last} was trained on {cfg.width}x{cfg.height} images, "
                          f"but the shards are {size[0]}x{size[1]}")
+    mismatch = checkpoint.rule_mismatch(state, ss.rectify_rule())
+    if mismatch:
+        raise TrainError(f"{last}: {mismatch}; resume on shards built with the same --max-fov, or start a new --run")
     return state
 
 

@@ -67,8 +67,26 @@ def size_check(size: tuple[int, int], resize: bool) -> Preprocess:
     return prep
 
 
-def rectifier(calib_path: str, camera: str | None, size: tuple[int, int]) -> Preprocess:
-    """Rectify raw images with a calibration (cropped, rescaled to size) as a deployed robot would."""
+def crop_rule(ckpt: dict, ckpt_path: str, max_fov: float | None) -> dict:
+    """The rectification rule (max_fov degrees, interp) for raw images: the one the detector was trained with.
+
+    --max-fov fills in a checkpoint that does not record its rule; one that contradicts the recorded rule is
+    refused: another field of view shows the network images at another scale than it learned, so its APPD
+    (% of the diagonal) would be meaningless.
+    """
+    trained = checkpoint.rectify_rule(ckpt)
+    if trained is None:
+        return {"max_fov": max_fov, "interp": None}
+    if max_fov is not None and max_fov != trained.get("max_fov"):
+        raise TrainError(f"--max-fov {max_fov:g}: {ckpt_path} was trained on "
+                         f"{checkpoint.describe_fov(trained.get('max_fov'))}; omit --max-fov to rectify as it was "
+                         "trained")
+    return dict(trained)
+
+
+def rectifier(calib_path: str, camera: str | None, size: tuple[int, int], rule: dict) -> Preprocess:
+    """Rectify raw images with a calibration (cropped by the training rule, rescaled to size) as a deployed robot
+    would."""
     try:
         from appdgen.formats import load
         from appdgen.maps import rectify
@@ -77,13 +95,14 @@ def rectifier(calib_path: str, camera: str | None, size: tuple[int, int]) -> Pre
         raise TrainError(f"--calib needs appdgen's formats/maps/render modules, which are missing here ({exc}); "
                          "rectify the images with `appdgen` first and predict without --calib") from None
     calib = load(calib_path, camera)
-    rect = rectify(calib, size)
+    rect = rectify(calib, size, max_fov=rule["max_fov"])
+    interp = {"interp": rule["interp"]} if rule.get("interp") else {}  # unrecorded: remap_image's default
 
     def prep(img: np.ndarray, where: str) -> np.ndarray:
         if (img.shape[1], img.shape[0]) != tuple(calib.size):
             raise TrainError(f"{where}: raw image is {img.shape[1]}x{img.shape[0]} but {calib_path} "
                              f"describes a {calib.width}x{calib.height} camera")
-        return remap_image(img, rect, interp="lanczos4")
+        return remap_image(img, rect, **interp)
     return prep
 
 
@@ -115,13 +134,17 @@ def running_verdicts(paths: list[Path], values: list[float], window: int, thresh
 
 def predict(ckpt_path: str, inputs: list[str], calib: str | None = None, camera: str | None = None,
             threshold: float = 1.0, window: int = 9, batch: int = 32, resize: bool = False,
-            device: str = "auto") -> list[Prediction]:
-    """Predictions over a sequence of images, in order."""
+            device: str = "auto", max_fov: float | None = None) -> list[Prediction]:
+    """Predictions over a sequence of images, in order (max_fov: degrees, only for a checkpoint without one)."""
     dev = runtime.pick_device(device)
     runtime.setup_threads(dev)
-    model = checkpoint.build_model(checkpoint.load(ckpt_path)).to(dev).to(memory_format=torch.channels_last)
+    ckpt = checkpoint.load(ckpt_path)
+    if max_fov is not None and not calib:
+        raise TrainError("--max-fov applies to rectifying raw images: it needs --calib")
+    rule = crop_rule(ckpt, ckpt_path, max_fov)
+    model = checkpoint.build_model(ckpt).to(dev).to(memory_format=torch.channels_last)
     size = (model.cfg.width, model.cfg.height)
-    prep = rectifier(calib, camera, size) if calib else size_check(size, resize)
+    prep = rectifier(calib, camera, size, rule) if calib else size_check(size, resize)
     paths = list_images(inputs)
     values: list[float] = []
     for _, images in batches(paths, prep, batch):

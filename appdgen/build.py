@@ -35,7 +35,7 @@ from appdgen.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAME
                             ShardStats, fragment_name, record_json, sample_key, shard_name)
 from appdgen.maps import Rectification
 from appdgen.progress import Progress
-from appdgen.render import remap_image
+from appdgen.render import DEFAULT_INTERP, remap_image
 from appdgen.sampling import (DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, check_max_fov, default_ranges,
                               valid_crop)
 from appdgen.shards import TarShard, read_stats, write_fragment, write_index
@@ -83,7 +83,7 @@ class BuildConfig:
     ranges: dict[str, Range] | None = None  # default_ranges(reference)
     appd_max: float = DEFAULT_APPD_MAX
     zero_fraction: float = 0.01
-    interp: str = "lanczos4"
+    interp: str = DEFAULT_INTERP
     max_fov: float | None = None  # degrees: bounds the horizontal field of view of every crop
 
     def __post_init__(self) -> None:

@@ -7,6 +7,8 @@ import numpy as np
 from appdgen.errors import AppdgenError
 from appdgen.maps import Rectification
 
+#: The default interpolation of every remap (build, rectify, predict).
+DEFAULT_INTERP = "lanczos4"
 INTERPOLATIONS = {
     "nearest": cv2.INTER_NEAREST,
     "linear": cv2.INTER_LINEAR,
@@ -15,7 +17,7 @@ INTERPOLATIONS = {
 }
 
 
-def remap_image(raw: np.ndarray, rect: Rectification, interp: str = "lanczos4") -> np.ndarray:
+def remap_image(raw: np.ndarray, rect: Rectification, interp: str = DEFAULT_INTERP) -> np.ndarray:
     """The rectified, cropped and rescaled image remap(raw, M̂) at the rectification's output size."""
     if raw.shape[1] != rect.calib.width or raw.shape[0] != rect.calib.height:
         raise AppdgenError(

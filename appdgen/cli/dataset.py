@@ -19,7 +19,7 @@ from appdgen.cli.base import (
 from appdgen.distribute import BACKENDS
 from appdgen.errors import AppdgenError
 from appdgen.layout import FORMATS
-from appdgen.render import INTERPOLATIONS
+from appdgen.render import DEFAULT_INTERP, INTERPOLATIONS
 from appdgen.sources import SPLIT_BY
 
 
@@ -74,7 +74,7 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
               help="Largest APPD label, % of the raw diagonal; refused up front when the ranges cannot reach it.")
 @click.option("--zero-fraction", default=0.01, show_default=True, help="Fraction of samples that are exactly Θ*.")
 @max_fov_option
-@click.option("--interp", default="lanczos4", type=click.Choice(list(INTERPOLATIONS)), show_default=True,
+@click.option("--interp", default=DEFAULT_INTERP, type=click.Choice(list(INTERPOLATIONS)), show_default=True,
               help="Interpolation of the remap.")
 @click.option("--split-by", default="none", type=click.Choice(list(SPLIT_BY)), show_default=True,
               help="Split column from the path: first folder, KITTI day, or KITTI drive (list files may name splits).")

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from appdgen.calibration import Calibration
+from appdgen.render import DEFAULT_INTERP, INTERPOLATIONS
 from appdgen.cli.base import (
     fail_cleanly,
     parse_size,
@@ -83,7 +84,7 @@ def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size,
 @perturb_option
 @size_option
 @max_fov_option
-@click.option("--interp", default="lanczos4", type=click.Choice(["nearest", "linear", "cubic", "lanczos4"]),
+@click.option("--interp", default=DEFAULT_INTERP, type=click.Choice(list(INTERPOLATIONS)),
               show_default=True, help="Interpolation of the remap.")
 @click.argument("image", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output image (PNG, JPG…).")

@@ -9,7 +9,7 @@ DEMO := demo
 # The CPU build of torch (an unpinned torch pulls a multi-GB CUDA build).
 TORCH := torch==2.13.0
 
-.PHONY: demo test test-core test-fast test-heavy train train-one-scene paper-scale paper-scale-tiny bench bench-synth bench-rss clean
+.PHONY: demo test test-core test-fast test-heavy train train-one-scene paper-scale paper-scale-tiny device-wheels bench bench-synth bench-rss clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -75,6 +75,11 @@ paper-scale: $(TRAIN_STAMP)
 # The same code at 348x128 with small sizes: under 3 minutes on 2 CPU cores. Proves the chain, not the quality.
 paper-scale-tiny: $(TRAIN_STAMP)
 	$(PY) -m train experiment --tiny --out runs/paper-scale-tiny --overwrite $(ARGS)
+
+# Wheels the accelerator machine lacks (its python3 has CUDA torch, OpenCV, pyarrow, click, joblib, pyyaml but not
+# webdataset): pure-Python, carried in .whl/ (git-ignored). See docs/training.md, "Running it on the accelerator".
+device-wheels: $(STAMP)
+	$(PY) -m pip download -q --no-deps --only-binary=:all: -d .whl webdataset==1.0.2 braceexpand==0.1.7
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_geometry.py

@@ -7,13 +7,23 @@ distortion is monotone (checked), u grows with x and v with y, so the valid set 
 
 and a rectangle [x0, x1] × [y0, y1] is valid exactly when x0 ≥ max L, x1 ≤ min R over [y0, y1] and y0 ≥ max T,
 y1 ≤ min B over [x0, x1]. The four graphs are solved by Newton's method on dense uniform grids (1,025 nodes); a
-max/min over an interval is taken over the nodes inside plus the linearly interpolated ends, which errs by at
-most f''·Δ²/8 (measured: ≤ 7e-4 output px against 16,385 nodes, over 30 random calibrations in the paper's
-ranges). The size is then the root of "room left − size" and, when one axis has room to spare, the rectangle is centred in the range of feasible positions along it.
+max/min over an interval is taken over the nodes inside plus the linearly interpolated ends. That misses a peak
+between two nodes by f''·δ²/2 (δ: its distance to the nearest node, ≤ Δ/2), so on nested grids (257, 1,025 …)
+a peak near one node errs the same at every resolution. The rectangle grown on the nodes is then checked with a
+parabola through the nodes at each side's peak and ends: where that predicts the crop is off by more than
+GRID_ERROR_PX output px (at the raw size), or pokes out of the frame by more than GRID_EXCESS_PX raw px, it is
+grown again against the curves themselves, solved exactly at the interval ends and at each parabola peak (steep
+rational and EUCM lenses). Grids coarser than the default (the sampler's 257-node search) skip that pass: they are
+estimates, erring by up to ~2e-2 output px on KITTI (and 1.3e-3 raw px on the steep rational lens). KITTI-range
+radtan crops (measured: ≤ 1.15e-3 output px and ≤ 1.6e-4 raw px off over 1,200 draws of the paper's ranges) stay
+on the nodes, bit for bit as before. The size is the root of "room left − size" and, when one axis has room to
+spare, the rectangle is centred in the range of feasible positions along it.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -29,6 +39,11 @@ from appdgen.distortion import (
 from appdgen.errors import AppdgenError
 
 GRID_NODES = 1025
+#: Predicted error of the nodes' crop (output px at the raw size, either way) above which it is grown again against
+#: the exact boundary curves: above the 1.15e-3 px KITTI-range radtan crops reach, whose values must not change.
+GRID_ERROR_PX = 2e-3
+#: Predicted excess of the nodes' crop past the frame (raw px) above which the same: half the guard's 1e-3 px.
+GRID_EXCESS_PX = 5e-4
 #: Newton steps for the boundary curves: ~6 suffice near the axis, a fisheye's far rows take up to ~30.
 NEWTON_STEPS = 16
 _TOL = 1e-11  # normalized units: about 1e-8 output pixel
@@ -52,39 +67,111 @@ class Crop:
 
 
 class _Graph:
-    """A boundary curve sampled on a uniform grid, with exact-to-interpolation interval extrema."""
+    """A boundary curve sampled on a uniform grid, with interval extrema from the nodes or, once `exact` is set,
+    from the curve itself (`solve`: exact values at any points); scale·|slope|: raw pixels per normalized unit
+    across the frame edge at each node (scale: fx or fy, slope: ∂m/∂t)."""
 
-    def __init__(self, t: np.ndarray, f: np.ndarray):
-        self.t, self.f = t, f
+    def __init__(self, t: np.ndarray, f: np.ndarray, solve: Callable[[np.ndarray], np.ndarray], slope: np.ndarray,
+                 scale: float):
+        self.t, self.f, self.solve, self.slope, self.scale = t, f, solve, slope, scale
         self.t0, self.dt = float(t[0]), float(t[1] - t[0])
+        self.exact = False
+
+    def _span(self, a: float, b: float) -> tuple[int, int]:
+        """Index range of the nodes strictly inside [a, b]."""
+        i0 = max(math.floor((a - self.t0) / self.dt) + 1, 0)
+        return i0, min(math.ceil((b - self.t0) / self.dt), len(self.t))
 
     def _values(self, a: float, b: float) -> np.ndarray:
         """Values at the nodes strictly inside [a, b] and (interpolated) at a and b."""
-        i0 = max(int(np.floor((a - self.t0) / self.dt)) + 1, 0)
-        i1 = min(int(np.ceil((b - self.t0) / self.dt)), len(self.t))
+        i0, i1 = self._span(a, b)
         ends = np.interp([a, b], self.t, self.f, left=np.nan, right=np.nan)
         return np.concatenate([self.f[i0:i1], ends])
 
     def max_on(self, a: float, b: float) -> float:
         """max f over [a, b]; +inf where the curve is undefined there."""
+        if self.exact:
+            return self._exact_max(a, b, 1.0)
         v = self._values(a, b)
         return float(np.inf) if np.isnan(v).any() else float(v.max())
 
     def min_on(self, a: float, b: float) -> float:
         """min f over [a, b]; −inf where the curve is undefined there."""
+        if self.exact:
+            return -self._exact_max(a, b, -1.0)
         v = self._values(a, b)
         return float(-np.inf) if np.isnan(v).any() else float(v.min())
 
+    def _exact_max(self, a: float, b: float, sign: float) -> float:
+        """max of sign·f over [a, b] from the curve: solved at a and b and at each candidate peak between nodes."""
+        if not self.t[0] <= a <= b <= self.t[-1]:
+            return float(np.inf)
+        i0, i1 = self._span(a, b)
+        t = np.concatenate([[a], self.t[i0:i1], [b]])
+        f = np.concatenate([[0.0], sign * self.f[i0:i1], [0.0]])
+        f[[0, -1]] = sign * self.solve(np.array([a, b]))
+        peaks = _parabola_peaks(t, f)
+        return float(max(f.max(), (sign * self.solve(peaks)).max())) if peaks.size else float(f.max())
+
+    def curve_max(self, a: float, b: float, sign: float) -> tuple[float, float]:
+        """(max of sign·f over [a, b], raw px per unit across the edge there), the max estimated between the nodes
+        from parabolas through them (normalized units)."""
+        i0, i1 = self._span(a, b)
+        if i1 - i0 < 3 or not self.t[0] <= a <= b <= self.t[-1]:
+            return sign * (self.max_on(a, b) if sign > 0 else self.min_on(a, b)), self._raw(min(i0, len(self.t) - 1))
+        f = self.f
+        k = i0 + int(np.argmax(f[i0:i1]) if sign > 0 else np.argmin(f[i0:i1]))
+        # The nodes' peak refined on the parabola through it and its neighbours; a and b (interpolated linearly
+        # between nodes) on the parabola of their nearest inner node.
+        ia, ib = (a - self.t0) / self.dt, (b - self.t0) / self.dt  # in node steps
+        best, at, last = -math.inf, k, len(f) - 2
+        for i, end in ((k, None), (round(ia), ia), (round(ib), ib)):
+            i = min(max(i, i0, 1), i1 - 1, last)
+            f0, f1, f2 = f[i - 1:i + 2].tolist()
+            slope, curv = 0.5 * sign * (f2 - f0), 0.5 * sign * (f2 - 2.0 * f1 + f0)
+            if end is None:
+                d = min(max(-slope / (2.0 * curv) if curv < 0 else 0.0, -1.0, ia - i), 1.0, ib - i)
+            else:
+                d = end - i
+            value = sign * f1 + slope * d + curv * d * d
+            if value > best:
+                best, at = value, i
+        return max(best, sign * float(f[k])), self._raw(at)
+
+    def _raw(self, i: int) -> float:
+        """Raw pixels per normalized unit across the frame edge at node i."""
+        return self.scale * abs(float(self.slope[i]))
+
+
+def _parabola_peaks(t: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Peaks of the parabolas through each local maximum of f(t) (sorted t, ends included) and its neighbours,
+    where they may rise above max f; clipped to the neighbours' span."""
+    n = t.size
+    if n < 3:
+        return np.array([0.5 * (t[0] + t[-1])])
+    k = np.flatnonzero((f >= np.concatenate([[-np.inf], f[:-1]])) & (f >= np.concatenate([f[1:], [-np.inf]])))
+    j = np.clip(k, 1, n - 2)
+    x0, x1, x2, y0, y1, y2 = t[j - 1], t[j], t[j + 1], f[j - 1], f[j], f[j + 1]
+    d1 = (y1 - y0) / (x1 - x0)
+    c = ((y2 - y1) / (x2 - x1) - d1) / (x2 - x0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        peak = np.clip(0.5 * (x0 + x1) - d1 / (2.0 * c), t[np.maximum(k - 1, 0)], t[np.minimum(k + 1, n - 1)])
+    rise = y0 + d1 * (peak - x0) + c * (peak - x0) * (peak - x1) - f.max()
+    # Twice the predicted rise: a peak a little under the nodes' max by the parabola may still top it.
+    keep = (c < 0) & (rise + (rise + f.max() - f[k]) > 0)
+    return peak[keep]
+
 
 def _solve_axis(fixed: np.ndarray, target: np.ndarray, rows: np.ndarray, calib: Calibration,
-                r_fold: float) -> np.ndarray:
-    """Free coordinate t per element: x with m_x(t, fixed) = target where `rows`, else y with m_y(fixed, t) = target.
+                r_fold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Free coordinate t per element: x with m_x(t, fixed) = target where `rows`, else y with m_y(fixed, t) = target;
+    and the slope ∂m/∂t there (unitless; meaningless where no root was found).
 
     One vectorized Newton loop on the model's projection along one axis solves all four boundary curves. Where no
     root lies inside the fold radius the frame edge is never reached there, and the fold circle bounds the set.
     """
     along, coeffs = _axis_projection(lens.get(calib.model)), calib.coeffs
-    t = target.copy()
+    t, dm = target.copy(), np.ones_like(target)
     # The points still moving, packed: (their index, t, fixed, rows, target).
     index, ta, fa, ra, ga = np.arange(t.size), t.copy(), fixed, rows, target
     with np.errstate(all="ignore"):  # diverging points turn non-finite, leave the active set, and are caught below
@@ -97,16 +184,18 @@ def _solve_axis(fixed: np.ndarray, target: np.ndarray, rows: np.ndarray, calib: 
             ta = ta - step
             moving = np.abs(step) > 1e-13  # ~1e-10 px: converged (smaller steps are rounding jitter)
             if not moving.all():
-                t[index] = ta
+                t[index], dm[index] = ta, slope
                 index, ta, fa, ra, ga = index[moving], ta[moving], fa[moving], ra[moving], ga[moving]
+                slope = slope[moving]
                 if index.size == 0:
                     break
         t[index] = ta
+        dm[index] = slope
         # The check needs no slope: the plain projection spares a generic model its Jacobian here.
         mx, my = lens.get(calib.model).project(*_plane(t, fixed, rows), coeffs)
         missing = ~((np.abs(np.where(rows, mx, my) - target) < 1e-12) & (t * t + fixed * fixed < r_fold * r_fold))
         t[missing] = np.copysign(np.sqrt(np.maximum(r_fold * r_fold - fixed[missing] ** 2, 0.0)), target[missing])
-    return t
+    return t, dm
 
 
 def _axis_projection(model):
@@ -168,7 +257,7 @@ def _frame_box(calib: Calibration, r_fold: float, bounded: bool) -> tuple[float,
         # by where the axes through it leave the frame.
         if not bounded:
             _refuse_unbounded(calib)
-        left, right, top, bottom = _solve_axis(np.zeros(4), np.array(_edges(calib)),
+        (left, right, top, bottom), _ = _solve_axis(np.zeros(4), np.array(_edges(calib)),
                                                np.array([True, True, False, False]), calib, r_fold)
         return (left, right, top, bottom)
     # A 2 % margin covers the border's bulge between the 17 samples a side.
@@ -224,13 +313,26 @@ def _graphs(calib: Calibration, r_fold: float, nodes: int,
     """The four boundary graphs L(y), R(y), T(x), B(x) on `nodes` nodes over the box holding valid rectangles."""
     x0, x1, y0, y1 = _bounded_box(calib, r_fold, max_fov)
     ys, xs = np.linspace(y0, y1, nodes), np.linspace(x0, x1, nodes)
-    rows = np.repeat([True, True, False, False], nodes)
-    curves = _solve_axis(np.concatenate([ys, ys, xs, xs]), np.repeat(_edges(calib), nodes), rows, calib, r_fold)
-    left, right, top, bottom = curves.reshape(4, nodes)
+    edges, rows = _edges(calib), [True, True, False, False]
+    curves, slopes = _solve_axis(np.concatenate([ys, ys, xs, xs]), np.repeat(edges, nodes), np.repeat(rows, nodes),
+                                 calib, r_fold)
     # Rectangles stay in the box: it bounds the curves where the frame edge is out of reach (or past max_fov).
-    left, right = np.maximum(left, x0), np.minimum(right, x1)
-    top, bottom = np.maximum(top, y0), np.minimum(bottom, y1)
-    return _Graph(ys, left), _Graph(ys, right), _Graph(xs, top), _Graph(xs, bottom)
+    bounds = [(np.maximum, x0), (np.minimum, x1), (np.maximum, y0), (np.minimum, y1)]
+
+    def graph(t: np.ndarray, values: np.ndarray, side: int, scale: float) -> _Graph:
+        """Boundary curve `side` (left, right, top, bottom) from its node values, clipped to the box."""
+        clip, bound = bounds[side]
+
+        def solve(free: np.ndarray) -> np.ndarray:
+            """The curve at any points, by the same Newton solve and clip as its nodes."""
+            fixed = np.asarray(free, dtype=np.float64)
+            return clip(_solve_axis(fixed, np.full_like(fixed, edges[side]), np.full(fixed.shape, rows[side]),
+                                    calib, r_fold)[0], bound)
+
+        return _Graph(t, clip(values, bound), solve, slopes[side * nodes:(side + 1) * nodes], scale)
+
+    return tuple(graph(ys if side < 2 else xs, curves[side * nodes:(side + 1) * nodes], side,
+                       calib.fx if side < 2 else calib.fy) for side in range(4))
 
 
 def _centre(s: float, aspect: float, g: tuple[_Graph, ...], xc: float, yc: float) -> tuple[float, float, float]:
@@ -253,12 +355,56 @@ def _centre(s: float, aspect: float, g: tuple[_Graph, ...], xc: float, yc: float
     return xc, yc, min((hi_x - lo_x) / aspect, hi_y - lo_y) - s
 
 
+def _grow(g: tuple[_Graph, ...], aspect: float, s: float, xc: float, yc: float, spare: float, hi: float,
+          spare_hi: float) -> tuple[float, float, float]:
+    """Grow a fitting rectangle of height s (spare room `spare` ≥ 0) to the root of "spare room = 0", below hi."""
+    lo = s
+    for _ in range(100):
+        # The spare room falls about one-for-one with s: step by it, or by regula falsi once bracketed.
+        trial = s + spare if np.isinf(hi) else lo + spare * (hi - lo) / (spare - spare_hi)
+        if not lo < trial < hi:
+            trial = 0.5 * (lo + hi)
+        txc, tyc, tspare = _centre(trial, aspect, g, xc, yc)
+        if tspare >= 0:
+            lo, s, xc, yc, spare = trial, trial, txc, tyc, tspare
+        else:
+            hi, spare_hi = trial, tspare
+        if spare < _TOL or hi - lo < _TOL:
+            break
+    return s, xc, yc
+
+
+def _grid_error(g: tuple[_Graph, ...], aspect: float, s: float, xc: float, yc: float,
+                calib: Calibration) -> tuple[float, float]:
+    """About how far the nodes' crop is off the exact one: (output pixels at the raw size, either way; raw pixels
+    by which its border leaves the frame, the guard's unit), to first order in the curves' errors between nodes."""
+    x0, x1, y0, y1 = xc - 0.5 * aspect * s, xc + 0.5 * aspect * s, yc - 0.5 * s, yc + 0.5 * s
+    (left, raw_l), (right, raw_r) = g[0].curve_max(y0, y1, 1.0), g[1].curve_max(y0, y1, -1.0)
+    (top, raw_t), (bottom, raw_b) = g[2].curve_max(x0, x1, 1.0), g[3].curve_max(x0, x1, -1.0)
+    right, bottom = -right, -bottom
+    # The rectangle the curves' extrema would give: the largest in their room, centred in it.
+    s_new = min((right - left) / aspect, bottom - top)
+    half_w, half_h, mid_x, mid_y = 0.5 * aspect * s_new, 0.5 * s_new, 0.5 * (left + right), 0.5 * (top + bottom)
+    out_x, out_y = calib.width / (x1 - x0), calib.height / (y1 - y0)  # output px per normalized unit
+    output_error = max(abs(mid_x - half_w - x0) * out_x, abs(mid_x + half_w - x1) * out_x,
+                       abs(mid_y - half_h - y0) * out_y, abs(mid_y + half_h - y1) * out_y)
+    # Where a curve passes its edge of the rectangle, by how many raw pixels.
+    excess = max((left - x0) * raw_l, (x1 - right) * raw_r, (top - y0) * raw_t, (y1 - bottom) * raw_b)
+    return output_error, excess
+
+
+def _off_by_more(errors: tuple[float, float], fine: float) -> bool:
+    """Whether _grid_error's (output px, raw excess px) pass GRID_ERROR_PX or GRID_EXCESS_PX, times `fine`."""
+    return errors[0] > GRID_ERROR_PX * fine or errors[1] > GRID_EXCESS_PX * fine
+
+
 def valid_region(calib: Calibration, nodes: int = GRID_NODES, check: bool = True,
                  max_fov: float | None = None) -> Crop:
     """The largest valid rectangle of raw aspect W:H (in pixels), centred where it can slide; normalized units.
 
-    `nodes` sets the boundary grids' resolution (257 errs by ~1e-4 px); `check=False` skips the final guard
-    (monotone lens over R, R inside the frame), for searches that check their final answer. `max_fov` (degrees,
+    `nodes` sets the boundary grids' resolution (coarser than GRID_NODES: a quick estimate without the exactness
+    pass, 257 nodes err by up to ~2e-2 output px; finer: tighter bounds, by (1024/(nodes − 1))²); `check=False`
+    skips the final guard (monotone lens over R, R inside the frame), for searches that check their final answer. `max_fov` (degrees,
     None = unbounded) keeps R within that horizontal field of view: inside the raw-aspect box |x| ≤ tan(max_fov/2)
     around the principal point (see fov_box).
     """
@@ -274,19 +420,21 @@ def valid_region(calib: Calibration, nodes: int = GRID_NODES, check: bool = True
         s *= 0.5
     else:
         raise AppdgenError(f"calibration has no valid region around its principal point: {calib.to_dict()}")
-    lo, hi, spare_hi = s, np.inf, -np.inf
-    for _ in range(100):
-        # The spare room falls about one-for-one with s: step by it, or by regula falsi once bracketed.
-        trial = s + spare if np.isinf(hi) else lo + spare * (hi - lo) / (spare - spare_hi)
-        if not lo < trial < hi:
-            trial = 0.5 * (lo + hi)
-        txc, tyc, tspare = _centre(trial, aspect, g, xc, yc)
-        if tspare >= 0:
-            lo, s, xc, yc, spare = trial, trial, txc, tyc, tspare
-        else:
-            hi, spare_hi = trial, tspare
-        if spare < _TOL or hi - lo < _TOL:
-            break
+    s, xc, yc = _grow(g, aspect, s, xc, yc, spare, np.inf, -np.inf)
+    # Coarser grids than the default are the sampler's quick estimates: they skip the exactness pass.
+    fine = ((GRID_NODES - 1) / (nodes - 1)) ** 2  # the grid error scales with the node step squared
+    if fine <= 1.0 and _off_by_more(_grid_error(g, aspect, s, xc, yc, calib), fine):
+        # Strongly curved boundaries: the nodes miss a peak between them by up to f''Δ²/8, so the rectangle is
+        # grown again against the curves themselves (solved at the interval ends and at each peak).
+        for graph in g:
+            graph.exact = True
+        xc, yc, spare = _centre(s, aspect, g, xc, yc)
+        hi, spare_hi = np.inf, -np.inf
+        while spare < 0:  # the nodes' rectangle pokes out: shrink by twice its excess until it fits
+            hi, spare_hi = s, spare
+            s = s + 2.0 * spare if np.isfinite(spare) else 0.5 * s
+            xc, yc, spare = _centre(s, aspect, g, xc, yc)
+        s, xc, yc = _grow(g, aspect, s, xc, yc, spare, hi, spare_hi)
     crop = Crop(xc - 0.5 * aspect * s, yc - 0.5 * s, xc + 0.5 * aspect * s, yc + 0.5 * s)
     if check:
         _check_crop(calib, crop, r_fold)

@@ -353,3 +353,45 @@ def test_cross_model_appd_of_one_fisheye_is_small():
     assert pct < 0.05  # the same lens in two models: a small fraction of a pixel
     # ... while a 1 % focal change of the same camera is far larger.
     assert appd(TUMVI, TUMVI.perturb(fx=0.01), (256, 256), max_fov=120.0)[1] > 10 * pct
+
+
+
+def perturbed(calib: Calibration, n: int, seed: int) -> list[Calibration]:
+    """n calibrations drawn uniformly (seeded) from the sampler's default ranges around calib."""
+    from appdgen.sampling import default_ranges
+
+    params, ranges = calib.params(), default_ranges(calib)
+    bounds = {name: ranges[name].offsets(params[name]) for name in calib.param_names}
+    rng = np.random.default_rng(seed)
+    return [calib.replace(**{name: params[name] + rng.uniform(*bounds[name]) for name in calib.param_names})
+            for _ in range(n)]
+
+
+def property_cameras() -> list[tuple[str, Calibration, float | None]]:
+    """Each lens model's test camera and, when ../shared/data is present, every camera of its real files."""
+    from conftest import shared_data
+
+    cameras = [(name, calib, max_fov) for name, (calib, max_fov) in sorted(MODEL_CASES.items())]
+    if shared_data() is not None:
+        cameras += [(name, calib, 120.0 if calib.model == "kb4" else None)  # fisheyes that see past 90°
+                    for name, calib in real_cameras(shared_data())]
+    return cameras
+
+
+@pytest.mark.parametrize("name, calib, max_fov", property_cameras(), ids=lambda v: v if isinstance(v, str) else "")
+def test_perturbed_crops_stay_in_the_frame_or_fold(name, calib, max_fov):
+    """Random perturbations in the default ranges: a checked crop lies inside the frame to 0.001 px by OpenCV or
+    the papers' projections, or it is refused in one line (the lens folds where the crop needs it, or its valid
+    region is unbounded); never an internal error."""
+    refused = 0
+    for i, other in enumerate(perturbed(calib, 20, seed=len(name))):
+        try:
+            crop = valid_region(other, max_fov=max_fov)
+        except AppdgenError as error:
+            assert "internal error" not in str(error), (name, i, error)
+            refused += 1
+            continue
+        u, v = reference_plane_pixels(*edge_points(crop, 2001), other)
+        excess = max(-u.min(), -v.min(), u.max() - (other.width - 1), v.max() - (other.height - 1))
+        assert excess <= 1e-3, (name, i, excess, other.to_dict())
+    assert refused < 20, name

@@ -525,7 +525,7 @@ def _select(names: list[str], camera: str | int | None) -> str:
     if camera is None:
         if len(names) == 1:
             return names[0]
-        raise AppdgenError(f"{len(names)} cameras; choose one with camera=…; available: {_listing(names)}")
+        raise AppdgenError(f"{len(names)} cameras; choose one with --camera (camera= in Python); available: {_listing(names)}")
     wanted = str(camera).strip()
     number = _camera_number(wanted)
     matches = [n for n in names if n == wanted] or [n for n in names if number and _camera_number(n) == number]

@@ -6,8 +6,8 @@ import functools
 import numpy as np
 
 from appdgen.errors import AppdgenError
-from appdgen.lens.numerics import (angle_slope, first_nonpositive, plane_of_rays, quotient_jacobian, radial_project,
-                                   radius_of_angle, scale_maps, unit_rays, within_angle)
+from appdgen.lens.numerics import (angle_slope, first_nonpositive, plane_of_rays, quotient_model, radius_of_angle,
+                                   scale_maps, unit_rays, within_angle)
 
 NAME = "ds"
 PARAMS: tuple[str, ...] = ("xi", "alpha")
@@ -24,19 +24,7 @@ def _denominator(q: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, 
     return alpha * d2 + (1.0 - alpha) * zz, alpha * dd2 + (1.0 - alpha) * dzz
 
 
-def _scale(q: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
-    """m / (x, y) at q = r²."""
-    return 1.0 / _denominator(q, coeffs)[0]
-
-
-def project(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates."""
-    return radial_project(x, y, lambda q: _scale(q, coeffs))
-
-
-def jacobian(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, ...]:
-    """(∂mx/∂x, ∂mx/∂y, ∂my/∂x, ∂my/∂y) of project (unitless)."""
-    return quotient_jacobian(x, y, lambda q: _denominator(q, coeffs))
+_scale, project, jacobian = quotient_model(_denominator)
 
 
 @functools.lru_cache(maxsize=256)

@@ -146,6 +146,24 @@ def quotient_jacobian(x: np.ndarray, y: np.ndarray,
     return scale_jacobian(x, y, 1.0 / den, -dden / (den * den))
 
 
+def quotient_model(denominator: Callable) -> tuple[Callable, Callable, Callable]:
+    """(scale, project, jacobian) of a unified model m = (x, y)/den(q, coeffs), q = x² + y² (DS, EUCM), from its
+    den(q, coeffs) → (den, dden/dq): each such model states only its denominator."""
+    def scale(q: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
+        """m / (x, y) at q = r²."""
+        return 1.0 / denominator(q, coeffs)[0]
+
+    def project(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates."""
+        return radial_project(x, y, lambda q: scale(q, coeffs))
+
+    def jacobian(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, ...]:
+        """(∂mx/∂x, ∂mx/∂y, ∂my/∂x, ∂my/∂y) of project (unitless)."""
+        return quotient_jacobian(x, y, lambda q: denominator(q, coeffs))
+
+    return scale, project, jacobian
+
+
 def angle_slope(sin: np.ndarray, cos: np.ndarray, den: np.ndarray, dden: np.ndarray) -> np.ndarray:
     """dρ/dθ·den² of ρ(θ) = sin θ/den(θ) given den and dden/dθ; −1 where den ≤ 0 (no valid projection)."""
     return np.where(den > 0, cos * den - sin * dden, -1.0)

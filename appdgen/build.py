@@ -27,7 +27,7 @@ from appdgen import __version__
 from appdgen.appd import px_to_pct
 from appdgen.atomic import atomic_write, temporary_target
 from appdgen.calibration import Calibration
-from appdgen.crop import check_output_size
+from appdgen.crop import check_max_fov, check_output_size, valid_region
 from appdgen.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.images import encode_image, read_image
@@ -36,8 +36,7 @@ from appdgen.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAME
 from appdgen.maps import Rectification
 from appdgen.progress import Progress
 from appdgen.render import DEFAULT_INTERP, remap_image
-from appdgen.sampling import (DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, check_max_fov, default_ranges,
-                              valid_crop)
+from appdgen.sampling import DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, default_ranges
 from appdgen.shards import TarShard, read_stats, write_fragment, write_index
 from appdgen.sources import RawImage, check_complete
 
@@ -113,7 +112,7 @@ class BuildConfig:
     def _check_reference(self) -> None:
         """Refuse a reference without a valid crop (e.g. a folding lens), naming its file."""
         try:
-            valid_crop(self.reference, self.max_fov)
+            valid_region(self.reference, max_fov=self.max_fov)
         except AppdgenError as exc:
             raise AppdgenError(f"{self.calib_path}: camera {self.camera}: {exc}") from None
 

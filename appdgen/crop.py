@@ -293,12 +293,20 @@ def _bounded_box(calib: Calibration, r_fold: float, max_fov: float | None) -> tu
     return x0, x1, y0, y1
 
 
+def check_max_fov(max_fov: float | None) -> None:
+    """Refuse a --max-fov (degrees) that is not a number in (0, 180); None (unbounded) passes."""
+    if max_fov is None:
+        return
+    if not (isinstance(max_fov, (int, float)) and 0.0 < max_fov < 180.0):
+        raise AppdgenError(f"--max-fov {max_fov!r}: must be a horizontal field of view between 0 and 180 degrees "
+                           "(exclusive)")
+
+
 def fov_box(calib: Calibration, max_fov: float) -> tuple[float, float]:
     """Half-width tan(max_fov/2) and half-height (the same over the raw aspect) of the max_fov box, normalized."""
     # Bounding x alone left a fisheye's vertical room lopsided (tan grows fast towards 90°): the T265's rectangle,
     # centred in it, looked 60° down. The raw-aspect box around the principal point keeps the view ahead.
-    if not 0.0 < max_fov < 180.0:
-        raise AppdgenError(f"--max-fov must be between 0 and 180 degrees (exclusive), got {max_fov:g}")
+    check_max_fov(max_fov)
     half = float(np.tan(np.radians(max_fov) / 2.0))
     return half, half / _aspect(calib)
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from appdgen.appd import appd_px, px_to_pct
 from appdgen.calibration import DEFAULT_MODEL, DISTORTION, FOCAL, PRINCIPAL, Calibration
-from appdgen.crop import GRID_NODES, Crop, valid_region
+from appdgen.crop import GRID_NODES, Crop, check_max_fov, valid_region
 from appdgen.distortion import distort_to_pixels
 from appdgen.errors import AppdgenError
 from appdgen.maps import Rectification, rectify
@@ -50,21 +50,6 @@ CAP_RETRIES = 3  # directions whose label exceeds appd_max before the target is 
 
 class UnreachableError(AppdgenError):
     """The ranges cannot reach a target APPD: an option problem, fixed by other options (and --overwrite)."""
-
-
-def check_max_fov(max_fov: float | None) -> None:
-    """Refuse a --max-fov (degrees) outside (0, 180)."""
-    if max_fov is None:
-        return
-    if not (isinstance(max_fov, (int, float)) and 0 < max_fov < 180):
-        raise AppdgenError(f"--max-fov {max_fov!r}: must be a horizontal field of view in (0, 180) degrees")
-
-
-def valid_crop(calib: Calibration, max_fov: float | None = None, nodes: int = GRID_NODES,
-               check: bool = True) -> Crop:
-    """The crop R of a calibration under an optional horizontal field-of-view bound (degrees): the one place the
-    sampler and the build ask for a crop, so Θ* and every Θm get the same rule."""
-    return valid_region(calib, nodes, check, max_fov=max_fov)
 
 
 @dataclass(frozen=True)
@@ -197,8 +182,8 @@ class Sampler:
         self.reference_rect = rectify(self.reference, self._out_size, reference_crop) if self.labels else None
 
     def _crop(self, calib: Calibration, nodes: int = GRID_NODES, check: bool = True) -> Crop:
-        """The crop of a calibration under this sampler's field-of-view bound."""
-        return valid_crop(calib, self.max_fov, nodes, check)
+        """The crop of a calibration under this sampler's field-of-view bound: Θ* and every Θm get the same rule."""
+        return valid_region(calib, nodes, check, max_fov=self.max_fov)
 
     def _position_jacobian(self) -> np.ndarray:
         """∂(coarse M̂ positions)/∂(parameter) at the reference, by forward differences (P × 2 × rows × cols)."""

@@ -14,7 +14,8 @@ from appdgen.calibration import Calibration
 from appdgen.crop import valid_region
 from appdgen.distribute import run_unordered
 from appdgen.errors import AppdgenError
-from appdgen.sampling import (PAPER_RANGES, ZERO_RANGES, Range, Sampler, UnreachableError, check_max_fov,
+from appdgen.crop import check_max_fov
+from appdgen.sampling import (PAPER_RANGES, ZERO_RANGES, Range, Sampler, UnreachableError,
                               default_ranges, paper_ranges, parse_ranges)
 from helpers import sampler_draws, scaled
 
@@ -181,14 +182,9 @@ def test_radtan_labels_are_todays(kitti02: Calibration) -> None:
     assert changed == [186, 256]
 
 
-def test_max_fov_is_refused_until_the_crop_takes_it_then_bounds_every_crop(kitti02: Calibration) -> None:
+def test_max_fov_is_refused_out_of_range_and_bounds_every_crop(kitti02: Calibration) -> None:
     with pytest.raises(AppdgenError, match="--max-fov 0"):
         check_max_fov(0)
-    try:
-        check_max_fov(60.0)
-    except AppdgenError as exc:
-        assert "no field-of-view bound yet" in str(exc)
-        return
     sampler = Sampler(scaled(kitti02, 8), size=SIZE, labels=True, max_fov=60.0)
     for draw in (sampler.draw(0, i) for i in range(10)):
         x0, x1 = draw.rect.crop.x0, draw.rect.crop.x1

@@ -175,6 +175,22 @@ def test_appd_matches_float64_mean_distance(kitti02):
     assert pct == pytest.approx(px * 100 / np.hypot(1392, 512), rel=1e-12)
 
 
+def test_appd_does_not_depend_on_where_the_maps_lie_in_memory(kitti02):
+    a, b = rectify(kitti02, (348, 128)), rectify(kitti02.perturb(fx=0.05, k1=0.1), (348, 128))
+
+    def moved(array: np.ndarray, offset: int) -> np.ndarray:
+        """A copy of a float32 array starting `offset` bytes past a 64-byte boundary."""
+        raw = np.empty(array.nbytes + 128, np.uint8)
+        start = (-raw.ctypes.data) % 64 + offset
+        copy = raw[start:start + array.nbytes].view(np.float32).reshape(array.shape)
+        copy[...] = array
+        return copy
+
+    values = {appd_px(a, type(b)(b.calib, b.crop, b.new_camera_matrix, moved(b.map_x, o), moved(b.map_y, 60 - o)))
+              for o in range(0, 64, 4)}
+    assert values == {appd_px(a, b)}  # to the last bit: builds must not depend on the worker
+
+
 def test_appd_grows_smoothly_and_monotonically_in_fx(kitti02):
     ref = rectify(kitti02)
     for sign in (1, -1):

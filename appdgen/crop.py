@@ -17,7 +17,8 @@ rational and EUCM lenses). Grids coarser than the default (the sampler's 257-nod
 estimates, erring by up to ~2e-2 output px on KITTI (and 1.3e-3 raw px on the steep rational lens). KITTI-range
 radtan crops (measured: ≤ 1.15e-3 output px and ≤ 1.6e-4 raw px off over 1,200 draws of the paper's ranges) stay
 on the nodes, bit for bit as before. The size is the root of "room left − size" and, when one axis has room to
-spare, the rectangle is centred in the range of feasible positions along it.
+spare, the rectangle is centred in the range of feasible positions along it. search_region is the samplers'
+quick estimate: the same nodes' crop over a box given around R's room (room) instead of the frame box.
 """
 from __future__ import annotations
 
@@ -317,9 +318,10 @@ def _aspect(calib: Calibration) -> float:
 
 
 def _graphs(calib: Calibration, r_fold: float, nodes: int,
-            max_fov: float | None) -> tuple[_Graph, _Graph, _Graph, _Graph]:
-    """The four boundary graphs L(y), R(y), T(x), B(x) on `nodes` nodes over the box holding valid rectangles."""
-    x0, x1, y0, y1 = _bounded_box(calib, r_fold, max_fov)
+            box: tuple[float, float, float, float]) -> tuple[_Graph, _Graph, _Graph, _Graph]:
+    """The four boundary graphs L(y), R(y), T(x), B(x) on `nodes` nodes over a box (x0, x1, y0, y1) holding the
+    valid rectangles."""
+    x0, x1, y0, y1 = box
     ys, xs = np.linspace(y0, y1, nodes), np.linspace(x0, x1, nodes)
     edges, rows = _edges(calib), [True, True, False, False]
     curves, slopes = _solve_axis(np.concatenate([ys, ys, xs, xs]), np.repeat(edges, nodes), np.repeat(rows, nodes),
@@ -417,18 +419,9 @@ def valid_region(calib: Calibration, nodes: int = GRID_NODES, check: bool = True
     around the principal point (see fov_box).
     """
     r_fold = radial_fold_radius(calib)
-    g = _graphs(calib, r_fold, nodes, max_fov)
+    g = _graphs(calib, r_fold, nodes, _bounded_box(calib, r_fold, max_fov))
     aspect = _aspect(calib)
-    # Start from a small rectangle around the principal point and grow s to the root of "spare room = 0".
-    s = 0.25 * min(g[0].t[-1] - g[0].t[0], (g[2].t[-1] - g[2].t[0]) / aspect)
-    for _ in range(30):
-        xc, yc, spare = _centre(s, aspect, g, 0.0, 0.0)
-        if spare > 0:
-            break
-        s *= 0.5
-    else:
-        raise AppdgenError(f"calibration has no valid region around its principal point: {calib.to_dict()}")
-    s, xc, yc = _grow(g, aspect, s, xc, yc, spare, np.inf, -np.inf)
+    s, xc, yc = _largest(g, aspect, calib)
     # Coarser grids than the default are the sampler's quick estimates: they skip the exactness pass.
     fine = ((GRID_NODES - 1) / (nodes - 1)) ** 2  # the grid error scales with the node step squared
     if fine <= 1.0 and _off_by_more(_grid_error(g, aspect, s, xc, yc, calib), fine):
@@ -447,6 +440,66 @@ def valid_region(calib: Calibration, nodes: int = GRID_NODES, check: bool = True
     if check:
         _check_crop(calib, crop, r_fold)
     return crop
+
+
+def _largest(g: tuple[_Graph, ...], aspect: float, calib: Calibration) -> tuple[float, float, float]:
+    """(height s, centre xc, yc) of the largest rectangle the graphs' nodes allow, centred where it can slide."""
+    # Start from a small rectangle around the principal point and grow s to the root of "spare room = 0".
+    s = 0.25 * min(g[0].t[-1] - g[0].t[0], (g[2].t[-1] - g[2].t[0]) / aspect)
+    for _ in range(30):
+        xc, yc, spare = _centre(s, aspect, g, 0.0, 0.0)
+        if spare > 0:
+            break
+        s *= 0.5
+    else:
+        raise AppdgenError(f"calibration has no valid region around its principal point: {calib.to_dict()}")
+    return _grow(g, aspect, s, xc, yc, spare, np.inf, -np.inf)
+
+
+def search_region(calib: Calibration, box: tuple[float, float, float, float], nodes: int,
+                  max_fov: float | None = None) -> Crop | None:
+    """A quick estimate of R (normalized) for searches: boundary grids of `nodes` nodes over a given box (x0, x1,
+    y0, y1) instead of the calibration's frame box, no exactness pass and no guard; None where the box may cut R
+    (use valid_region then).
+
+    The box need only hold the room R slides in (a sampler's box predicted around it, see room): the curves
+    matter there alone, so no frame box is solved per call (its border undistortion was ~40 % of a 257-node
+    valid_region). `max_fov` cuts it as valid_region's. Like valid_region's coarse grids, this errs by the
+    grid's f''Δ²/8.
+    """
+    cut = list(box)
+    if max_fov is not None:
+        half_x, half_y = fov_box(calib, max_fov)
+        cut = [max(cut[0], -half_x), min(cut[1], half_x), max(cut[2], -half_y), min(cut[3], half_y)]
+    crop, g = _nodes_region(calib, nodes, tuple(cut))
+    # The room within 1 % of a side the given box set (not max_fov): the box may have cut it, and R with it.
+    margin = (0.01 * (box[1] - box[0]),) * 2 + (0.01 * (box[3] - box[2]),) * 2
+    if any(cut[i] == box[i] and abs(side - box[i]) < margin[i] for i, side in enumerate(_room(g, crop))):
+        return None
+    return crop
+
+
+def room(calib: Calibration, nodes: int, max_fov: float | None = None) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1), normalized: the room R slides in (its own extent along an axis it fills), from the
+    boundary curves on `nodes` nodes over the calibration's own box."""
+    crop, g = _nodes_region(calib, nodes, _bounded_box(calib, radial_fold_radius(calib), max_fov))
+    return _room(g, crop)
+
+
+def _nodes_region(calib: Calibration, nodes: int,
+                  box: tuple[float, float, float, float]) -> tuple[Crop, tuple[_Graph, ...]]:
+    """R on the nodes alone (no exactness pass, no guard) over a box, and its graphs."""
+    r_fold = radial_fold_radius(calib)
+    g = _graphs(calib, r_fold, nodes, box)
+    aspect = _aspect(calib)
+    s, xc, yc = _largest(g, aspect, calib)
+    return Crop(xc - 0.5 * aspect * s, yc - 0.5 * s, xc + 0.5 * aspect * s, yc + 0.5 * s), g
+
+
+def _room(g: tuple[_Graph, ...], crop: Crop) -> tuple[float, float, float, float]:
+    """Where the boundary curves bind around a crop: (max L, min R) over its rows, (max T, min B) over its columns."""
+    return (g[0].max_on(crop.y0, crop.y1), g[1].min_on(crop.y0, crop.y1),
+            g[2].max_on(crop.x0, crop.x1), g[3].min_on(crop.x0, crop.x1))
 
 
 def _check_crop(calib: Calibration, crop: Crop, r_fold: float) -> None:

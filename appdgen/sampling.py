@@ -1,10 +1,12 @@
 """Sampling perturbed calibrations whose APPD labels are about uniform over [0, appd_max] (% of the diagonal).
 
 Each sample draws its target APPD first, then a random direction in the parameter box (extended to the box's
-boundary), and solves for the scale along that ray whose APPD hits the target (regula falsi, Illinois variant,
-on [0, 1] where APPD(0) = 0). Directions that cannot reach the target inside the box, whose search does not
-converge, or (with labels=True) whose stored label would exceed appd_max are redrawn. The search evaluates APPD
-on a coarse output grid (midpoint rule) with a coarser crop; the stored label is the full output grid's. All
+boundary), and solves for the scale λ ∈ (0, 1] along that ray whose APPD hits the target (a quadratic model
+walks up from APPD(0) = 0, then Illinois regula falsi once past it). Directions that do not reach the target
+before the box's boundary, whose search does not converge, or (with labels=True) whose stored label would exceed
+appd_max are redrawn. The search evaluates APPD on a coarse output grid (midpoint rule) with a quick crop
+(crop.search_region: its nodes on a box predicted around the crop's room); the stored label is the full output
+grid's, with the exact crop, and depends on the calibration alone. All
 randomness of sample i comes from numpy's SeedSequence([seed, i]). The parameters are the reference's lens
 model's (Calibration.param_names): fx, fy, cx, cy, then its coefficients.
 """
@@ -18,7 +20,7 @@ import numpy as np
 
 from appdgen.appd import appd_px, px_to_pct
 from appdgen.calibration import DEFAULT_MODEL, DISTORTION, FOCAL, PRINCIPAL, Calibration
-from appdgen.crop import GRID_NODES, Crop, check_max_fov, valid_region
+from appdgen.crop import GRID_NODES, Crop, check_max_fov, room, search_region, valid_region
 from appdgen.distortion import distort_to_pixels
 from appdgen.errors import AppdgenError
 from appdgen.maps import Rectification, rectify
@@ -177,6 +179,9 @@ class Sampler:
         # The full, checked crop refuses a reference the lens cannot rectify; the coarse search crops (257 nodes) are
         # estimates whose grid error can pass the guard's 1e-3 px on steep lenses (EUCM, rational), so they skip it.
         reference_crop = self._crop(self.reference)
+        # The search's crops put their nodes on a box predicted around each calibration's room (search_region):
+        # no frame box per evaluation, which was ~40 % of its cost.
+        self._room, self._slopes = self._room_model()
         self._ref_points = self._positions(self.reference)
         self._jacobian = self._position_jacobian()
         self.reference_rect = rectify(self.reference, self._out_size, reference_crop) if self.labels else None
@@ -184,6 +189,32 @@ class Sampler:
     def _crop(self, calib: Calibration, nodes: int = GRID_NODES, check: bool = True) -> Crop:
         """The crop of a calibration under this sampler's field-of-view bound: Θ* and every Θm get the same rule."""
         return valid_region(calib, nodes, check, max_fov=self.max_fov)
+
+    def _room_model(self) -> tuple[np.ndarray, np.ndarray]:
+        """The reference's room (x0, x1, y0, y1; crop.room) and each side's secant slope per parameter, towards
+        its range's low end and towards its high end (P × 2 × 4, normalized per parameter unit)."""
+        ref = np.array(room(self.reference, SEARCH_NODES, self.max_fov))
+        slopes = np.zeros((len(self._names), 2, 4))
+        for j, ends in enumerate(zip(self._low, self._high)):
+            for side, end in enumerate(ends):
+                if end != 0:
+                    step = np.zeros(len(self._names))
+                    step[j] = end
+                    try:
+                        moved = room(self._calibration(step), SEARCH_NODES, self.max_fov)
+                    except AppdgenError:  # an invalid end: no slope that way (search_region catches what it misses)
+                        continue
+                    slopes[j, side] = (np.array(moved) - ref) / end
+        return ref, slopes
+
+    def _search_box(self, calib: Calibration) -> tuple[float, float, float, float]:
+        """A node box (normalized) about calib's room as the reference's room and the secant slopes predict it,
+        plus 15 % of its size a side (search_region redoes a crop whose room reaches the box on its own box)."""
+        offsets = np.array([calib.fx, calib.fy, calib.cx, calib.cy, *calib.coeffs]) - self._base
+        slopes = np.where((offsets < 0)[:, None], self._slopes[:, 0], self._slopes[:, 1])
+        x0, x1, y0, y1 = self._room + offsets @ slopes
+        pad_x, pad_y = 0.15 * (x1 - x0), 0.15 * (y1 - y0)
+        return (x0 - pad_x, x1 + pad_x, y0 - pad_y, y1 + pad_y)
 
     def _position_jacobian(self) -> np.ndarray:
         """∂(coarse M̂ positions)/∂(parameter) at the reference, by forward differences (P × 2 × rows × cols)."""
@@ -195,23 +226,33 @@ class Sampler:
                 jacobian[j] = (self._positions(self._calibration(step)) - self._ref_points) / step[j]
         return jacobian
 
-    def _first_guess(self, direction: np.ndarray, edge_pct: float, target: float) -> float:
-        """Scale λ where APPD(λ) ≈ g·λ + (f(1) − g)·λ² meets the target, g = APPD's slope at λ = 0 (% / unit λ)."""
-        slope = np.hypot(*np.tensordot(direction, self._jacobian, axes=1)).mean() * 100.0 / self.reference.diagonal
-        curve = edge_pct - slope
+    def _slope(self, direction: np.ndarray) -> float:
+        """APPD's slope along the ray at λ = 0 (% of the diagonal per unit λ), from the positions' Jacobian."""
+        moved = np.tensordot(direction, self._jacobian, axes=1)
+        return float(np.hypot(*moved).mean()) * 100.0 / self.reference.diagonal
+
+    @staticmethod
+    def _model_root(slope: float, lam: float, value: float, target: float) -> float:
+        """Smallest λ > 0 where APPD(λ) ≈ slope·λ + c·λ² meets the target, c fitted through the point (lam, value)
+        (linear when lam = 0); inf when the model never reaches it."""
+        if slope <= 0:
+            return math.inf
+        curve = (value - slope * lam) / (lam * lam) if lam > 0 else 0.0
         if abs(curve) < 1e-12:
             return target / slope
         disc = slope * slope + 4.0 * curve * target
-        lam = (-slope + np.sqrt(disc)) / (2.0 * curve) if disc >= 0 else -1.0
-        return float(lam) if 0.0 < lam < 1.0 else target / edge_pct
+        return (-slope + math.sqrt(disc)) / (2.0 * curve) if disc >= 0 else math.inf
 
     def zero_ranges(self) -> list[str]:
         """Parameters whose range is empty (e.g. relative ranges around a reference value of 0)."""
         return [n for n, lo, hi in zip(self._names, self._low, self._high) if lo == hi == 0]
 
     def _positions(self, calib: Calibration, check: bool = False) -> np.ndarray:
-        """Raw-pixel positions of M̂ at the coarse grid (2 × rows × cols)."""
-        k = self._crop(calib, SEARCH_NODES, check).camera_matrix(self._out_size)
+        """Raw-pixel positions of M̂ at the coarse grid (2 × rows × cols): the search crop's (search_region) unless
+        `check`, or its box may have cut it; then the frame box's."""
+        crop = search_region(calib, self._search_box(calib), SEARCH_NODES, self.max_fov) if not check else None
+        crop = crop or self._crop(calib, SEARCH_NODES, check)
+        k = crop.camera_matrix(self._out_size)
         gx, gy = self._grid
         return np.stack(distort_to_pixels((gx - k[0, 2]) / k[0, 0], (gy - k[1, 2]) / k[1, 1], calib))
 
@@ -326,7 +367,7 @@ class Sampler:
         """
         try:
             if not self.labels:
-                self._crop(calib)  # the full grid: a 257-node crop's error can exceed the guard's 1e-3 px
+                self._crop(calib)  # the full grid: a search crop's error can exceed the guard's 1e-3 px
                 return calib, estimate, None, None
             rect = rectify(calib, self._out_size, self._crop(calib))
         except AppdgenError:
@@ -343,21 +384,36 @@ class Sampler:
             return None
 
     def _solve(self, direction: np.ndarray, target: float) -> tuple[tuple[Calibration, float] | None, int]:
-        """Scale along the ray whose coarse APPD is the target (Illinois regula falsi); None when out of reach
-        or not within tolerance after 30 evaluations."""
-        edge = self._evaluate(direction)
-        if edge is None or edge[1] < target:
-            return None, 1
-        a, fa, b, fb = 0.0, -target, 1.0, edge[1] - target
-        best, evaluations, side = edge, 1, 0
+        """(calibration, coarse APPD %) along the ray within tolerance of the target, and the evaluations spent;
+        None when the ray's end (λ = 1) stays below the target, or after 30 evaluations without one in tolerance.
+
+        Walks up from λ = 0 on a quadratic model of APPD(λ) (its slope at 0 from the positions' Jacobian, the
+        curvature from the last point below the target) and evaluates the ray's end only where the model points
+        there; once past the target, Illinois regula falsi. Starting at the end instead cost one evaluation
+        more per accepted ray (3.3 → 2.9 per sample on KITTI's ranges).
+        """
         tolerance = self.tolerance * self.appd_max
-        lam = self._first_guess(direction, edge[1], target)
-        while abs(best[1] - target) > tolerance and evaluations < 30:
+        slope = self._slope(direction)
+        a, fa, b, fb, side = 0.0, -target, 1.0, math.inf, 0
+        lam = min(self._model_root(slope, 0.0, 0.0, target), 1.0)
+        for evaluations in range(1, 31):
             point = self._evaluate(lam * direction)
-            evaluations += 1
             if point is None:
                 return None, evaluations
-            best, f = point, point[1] - target
+            f = point[1] - target
+            if abs(f) <= tolerance:
+                return point, evaluations
+            if f < 0 and lam >= 1.0:
+                return None, evaluations  # the ray's end is below the target: out of reach
+            if math.isinf(fb):  # not past the target yet: walk up on the model through this point
+                guess = self._model_root(slope, lam, point[1], target)
+                if f < 0:
+                    a, fa, lam = lam, f, min(guess, 1.0) if guess > lam else 1.0
+                    continue
+                b, fb = lam, f
+                # Just past it: the model's root when it falls between, else the secant.
+                lam = guess if a < guess < b else b - fb * (b - a) / (fb - fa)
+                continue
             if f * fb > 0:
                 b, fb = lam, f
                 fa, side = (fa / 2, side) if side == -1 else (fa, -1)
@@ -365,4 +421,5 @@ class Sampler:
                 a, fa = lam, f
                 fb, side = (fb / 2, side) if side == 1 else (fb, 1)
             lam = b - fb * (b - a) / (fb - fa)
-        return (best if abs(best[1] - target) <= tolerance else None), evaluations
+        return None, 30
+

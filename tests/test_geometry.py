@@ -6,7 +6,7 @@ import pytest
 
 from appdgen.appd import appd, appd_px
 from appdgen.calibration import Calibration
-from appdgen.crop import check_output_size, valid_region
+from appdgen.crop import check_output_size, room, search_region, valid_region
 from appdgen.errors import AppdgenError
 from appdgen.maps import rectify
 from conftest import KITTI_2011_09_26, PAPER_RANGES
@@ -189,6 +189,19 @@ def test_appd_does_not_depend_on_where_the_maps_lie_in_memory(kitti02):
     values = {appd_px(a, type(b)(b.calib, b.crop, b.new_camera_matrix, moved(b.map_x, o), moved(b.map_y, 60 - o)))
               for o in range(0, 64, 4)}
     assert values == {appd_px(a, b)}  # to the last bit: builds must not depend on the worker
+
+
+def test_search_region_is_the_nodes_crop_on_a_box_about_its_room_or_none(kitti02):
+    for calib in random_calibrations(kitti02, 20, seed=5):
+        x0, x1, y0, y1 = room(calib, 257)
+        pad_x, pad_y = 0.15 * (x1 - x0), 0.15 * (y1 - y0)
+        quick = search_region(calib, (x0 - pad_x, x1 + pad_x, y0 - pad_y, y1 + pad_y), 257)
+        exact = valid_region(calib)
+        px_per_unit = 1392 / (exact.x1 - exact.x0)
+        assert max(abs(quick.x0 - exact.x0), abs(quick.x1 - exact.x1), abs(quick.y0 - exact.y0),
+                   abs(quick.y1 - exact.y1)) * px_per_unit < 0.05  # output px: the search's estimate
+        # A box that cuts the room (here: along the axis the crop slides) gives no crop rather than a wrong one.
+        assert search_region(calib, (x0 - pad_x, x1 + pad_x, 0.5 * y0, 0.5 * y1), 257) is None
 
 
 def test_appd_grows_smoothly_and_monotonically_in_fx(kitti02):

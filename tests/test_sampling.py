@@ -169,16 +169,21 @@ def test_labels_never_exceed_appd_max(kitti02: Calibration) -> None:
 
 
 def test_radtan_labels_are_todays(kitti02: Calibration) -> None:
+    # The label of a given calibration never moves (#13: by at most 1e-6 px); the search that picks the calibration
+    # may change (its crops since #13 differ by ~1e-3 px), so the same seed lands on about the same calibration.
     golden = json.loads(GOLDEN.read_text())["samples"]
     sampler = Sampler(scaled(kitti02, 8), size=SIZE, labels=True)
     changed = []
     for index, row in golden.items():
+        calib = sampler.reference.replace(**{k: row[k] for k in sampler.reference.param_names})
+        assert appd(sampler.reference, calib, SIZE)[0] == pytest.approx(row["appd_px"], abs=1e-6), index
         draw = sampler.draw(3, int(index))
+        assert draw.is_reference == row["is_reference"]
         if row["appd_pct"] > 1.0:
             changed.append(int(index))
             continue
-        assert draw.calib.params() == {k: row[k] for k in draw.calib.param_names}, index
-        assert draw.appd_px == pytest.approx(row["appd_px"], abs=1e-6) and draw.is_reference == row["is_reference"]
+        # Both searches stop within 1 % of --appd-max of the same target.
+        assert abs(draw.appd_px * 100 / sampler.reference.diagonal - row["appd_pct"]) < 0.02 * sampler.appd_max
     assert changed == [186, 256]
 
 

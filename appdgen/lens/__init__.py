@@ -27,6 +27,7 @@ Modules take plain tuples of floats and never import the calibration type (which
 """
 from __future__ import annotations
 
+import functools
 import importlib
 from types import ModuleType
 
@@ -47,6 +48,12 @@ def get(name: str) -> ModuleType:
     if name not in MODELS:
         why = f"{UNSUPPORTED[name]}; " if name in UNSUPPORTED else ""
         raise AppdgenError(f"lens model {name!r} is not supported: {why}supported: {', '.join(MODELS)}")
+    return _module(name)
+
+
+@functools.cache
+def _module(name: str) -> ModuleType:
+    """The imported module of a supported model (cached: the crop asks ~10 times per evaluation)."""
     return importlib.import_module(f"appdgen.lens.{MODELS[name]}")
 
 

@@ -2,5 +2,5 @@
 from appdgen.calibration import PARAMS, Calibration
 from appdgen.errors import AppdgenError
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 __all__ = ["AppdgenError", "Calibration", "PARAMS", "__version__"]

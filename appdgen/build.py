@@ -22,6 +22,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pyarrow as pa
 
 from appdgen import __version__
 from appdgen.appd import px_to_pct
@@ -31,13 +32,13 @@ from appdgen.crop import check_max_fov, check_output_size, valid_region
 from appdgen.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.images import encode_image, read_image
-from appdgen.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE,
+from appdgen.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES,
                             ShardStats, fragment_name, record_json, sample_key, shard_name)
 from appdgen.maps import Rectification
 from appdgen.progress import Progress
 from appdgen.render import DEFAULT_INTERP, remap_image
 from appdgen.sampling import DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, default_ranges
-from appdgen.shards import TarShard, read_stats, write_fragment, write_index
+from appdgen.shards import TarShard, fragment_stats, read_stats, write_fragment, write_index
 from appdgen.sources import RawImage, check_complete
 
 MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
@@ -105,9 +106,9 @@ class BuildConfig:
         check_max_fov(self.max_fov)
         self._check_reference()
         # Refuses bad --appd-max, --zero-fraction and --ranges, and an --appd-max the ranges cannot reach, now
-        # (a few dozen coarse APPD evaluations), before --out is touched, not in a worker.
-        Sampler(self.reference, self.ranges, self.appd_max, self.zero_fraction, self.size,
-                max_fov=self.max_fov).check_reachable()
+        # (a few dozen coarse APPD evaluations), before --out is touched, not in a worker; the sampler is the one
+        # an in-process build (--jobs 1) goes on to use.
+        self.sampler().check_reachable()
 
     def _check_reference(self) -> None:
         """Refuse a reference without a valid crop (e.g. a folding lens), naming its file."""
@@ -133,6 +134,11 @@ class BuildConfig:
     def image_for(self, index: int) -> RawImage:
         """The raw image of sample `index`: consecutive blocks per image, so a shard decodes few images."""
         return self.images[index * len(self.images) // self.samples]
+
+    def sampler(self) -> Sampler:
+        """The build's labelling sampler (set up once per process and build options)."""
+        return _sampler(self.reference, tuple(sorted(self.ranges.items())), self.appd_max, self.zero_fraction,
+                        self.size, self.max_fov)
 
     def plan(self) -> dict:
         """A JSON-ready description of everything that shapes the output, by content: the calibration file's
@@ -182,25 +188,40 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
     cv2.setNumThreads(1)  # the parent decides parallelism
     out = Path(out_dir)
     start = time.perf_counter()
-    sampler = _sampler(config.reference, tuple(sorted(config.ranges.items())), config.appd_max,
-                       config.zero_fraction, config.size, config.max_fov)
-    rows, evaluations, sampler_seconds = [], 0, 0.0
+    sampler = config.sampler()
+    rows, evaluations, spent = [], 0, dict.fromkeys(STAGES, 0.0)
+    clock = [time.perf_counter()]
+
+    def lap(stage: str) -> None:
+        """Add the time since the last lap to a stage."""
+        now = time.perf_counter()
+        spent[stage] += now - clock[0]
+        clock[0] = now
+
     # Streamed to disk as it grows: a 1,000-sample full-size shard would be ~1 GB in memory.
     with TarShard(out / shard_name(shard)) as tar:
         for index in config.shard_samples(shard):
             draw = sampler.draw(config.seed, index)
-            evaluations, sampler_seconds = evaluations + draw.evaluations, sampler_seconds + draw.seconds
+            evaluations += draw.evaluations
+            lap("sample")
             raw_image = config.image_for(index)
-            data = encode_image(remap_image(_decoded(raw_image.path), draw.rect, config.interp), config.ext)
+            raw = _decoded(raw_image.path)
+            lap("decode")
+            image = remap_image(raw, draw.rect, config.interp)
+            lap("remap")
+            data = encode_image(image, config.ext)
+            lap("encode")
             row = _label_row(config, shard, index, raw_image, draw.is_reference, draw.rect, draw.appd_px)
             tar.add(f"{row['key']}.json", record_json(row))
             row[HASH_COLUMN] = hashlib.sha256(data).hexdigest()
             tar.add(f"{row['key']}{config.ext}", data)
             rows.append(row)
+            lap("write")
+    lap("write")
     stats = ShardStats(shard=shard, file=shard_name(shard), samples=len(rows), bytes=tar.size,
                        splits=dict(sorted(Counter(r["split"] for r in rows).items())),
                        references=sum(r["is_reference"] for r in rows), evaluations=evaluations,
-                       sampler_seconds=sampler_seconds, seconds=time.perf_counter() - start)
+                       stage_seconds=spent, seconds=time.perf_counter() - start)
     return stats, rows
 
 
@@ -335,12 +356,14 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
     todo = pending_shards(out, config)
     bar = Progress(config.samples, enabled=progress)
     bar.advance(config.samples - sum(len(config.shard_samples(k)) for k in todo), "resumed" if resume else "")
+    made: dict[int, pa.Table] = {}  # this run's fragments, kept for the index (re-reading them cost ~3 ms each)
     try:
         for stats, rows in run_unordered(build_shard, [(config, str(out), k) for k in todo], jobs, backend, scheduler):
             # Written last, after the shard's tar: the fragment marks the shard done.
-            write_fragment(out / PARTS_DIR / fragment_name(stats.shard), rows, config.reference.param_names, stats)
+            made[stats.shard] = write_fragment(out / PARTS_DIR / fragment_name(stats.shard), rows,
+                                               config.reference.param_names, stats)
             bar.advance(stats.samples, stats.file)
-        return _finish(config, out, todo, start, command, skipped or [])
+        return _finish(config, out, made, start, command, skipped or [])
     except OSError as exc:
         raise AppdgenError(f"--out {out}: write failed ({exc.strerror or exc}); fix it and rerun with --resume") from None
     except UnreachableError as exc:
@@ -352,13 +375,15 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
         raise AppdgenError(f"{exc} (finished shards are kept: fix this and rerun with --resume)") from None
 
 
-def _finish(config: BuildConfig, out: Path, built: list[int], start: float, command: list[str] | None,
+def _finish(config: BuildConfig, out: Path, made: dict[int, pa.Table], start: float, command: list[str] | None,
             skipped: list[dict]) -> dict:
-    """Write labels.parquet and build.json from the parts, then drop the parts; returns build.json's content."""
+    """Write labels.parquet and build.json from the parts (this run's from memory), then drop the parts; returns
+    build.json's content."""
     parts = out / PARTS_DIR
-    shards = [read_stats(parts / fragment_name(k)) for k in range(config.shards)]
-    write_index(out / INDEX, [parts / fragment_name(k) for k in range(config.shards)], config.reference.param_names)
-    summary = _summary(config, shards, built, time.perf_counter() - start, command, skipped)
+    fragments = [made.get(k, parts / fragment_name(k)) for k in range(config.shards)]
+    shards = [fragment_stats(f) if k in made else read_stats(f) for k, f in enumerate(fragments)]
+    write_index(out / INDEX, fragments, config.reference.param_names)
+    summary = _summary(config, shards, list(made), time.perf_counter() - start, command, skipped)
     atomic_write(out / BUILD_JSON, json.dumps(summary, indent=2).encode())
     # One rename ends the build (a kill during a plain rmtree could leave a plan-less, unresumable .parts).
     trash = out / f".{PARTS_DIR}.{secrets.token_hex(4)}.tmp"
@@ -383,10 +408,12 @@ def _summary(config: BuildConfig, shards: list[ShardStats], built: list[int], se
                    "skipped_images": skipped},
         "shards": [s.listing() for s in shards],
         "sampler": {"evaluations_per_sample": sum(s.evaluations for s in shards) / max(drawn, 1),
-                    "seconds_per_sample": sum(s.sampler_seconds for s in shards) / max(drawn, 1)},
+                    "seconds_per_sample": sum(s.stage_seconds["sample"] for s in shards) / max(drawn, 1)},
         "timings": {"wall_seconds": seconds, "shards_built": len(made), "shards_resumed": config.shards - len(made),
                     "samples_per_second": sum(s.samples for s in made) / seconds if seconds > 0 else None,
-                    "mb_written": sum(s.bytes for s in made) / 1e6},
+                    "mb_written": sum(s.bytes for s in made) / 1e6,
+                    # Worker seconds per stage over this run's shards (all workers together).
+                    "stage_seconds": {k: sum(s.stage_seconds[k] for s in made) for k in STAGES}},
         "libraries": _versions(),
     }
 

@@ -190,7 +190,16 @@ def _speed_lines(info: dict) -> list[str]:
         f"{1000 * sampler.get('seconds_per_sample', 0):.1f} ms per drawn sample",
         f"throughput: {rate or 0:.1f} samples/s ({timings.get('wall_seconds', 0):.1f} s wall; "
         f"{timings.get('shards_built', 0)} shards built, {timings.get('shards_resumed', 0)} resumed)",
+        *_stage_line(timings.get("stage_seconds") or {}),
     ]
+
+
+def _stage_line(stages: dict[str, float]) -> list[str]:
+    """Where the workers' time went, in % per stage (none for a build that built nothing now)."""
+    total = sum(stages.values())
+    if total <= 0:
+        return []
+    return ["worker time: " + ", ".join(f"{name} {100 * seconds / total:.1f} %" for name, seconds in stages.items())]
 
 
 def _disk_line(out: Path) -> str:

@@ -50,6 +50,9 @@ def fragment_name(shard: int) -> str:
 
 FRAGMENT_GLOB = "shard-*.tar.parquet"  # fragment_name of any shard
 STATS_KEY = b"appdgen.shard_stats"
+#: The stages of building a sample, timed per shard (ShardStats.stage_seconds, build.json timings): decode the raw
+#: image, sample Θm (search, crop, maps M̂, APPD label), remap, encode, write (hash, tar member, shard sync).
+STAGES = ("decode", "sample", "remap", "encode", "write")
 
 
 def label_schema(params: Sequence[str]) -> pa.Schema:
@@ -89,7 +92,7 @@ class ShardStats:
     splits: dict[str, int]
     references: int
     evaluations: int  # APPD evaluations of the sampler's searches
-    sampler_seconds: float
+    stage_seconds: dict[str, float]  # per STAGES name
     seconds: float
 
     def to_json(self) -> bytes:

@@ -43,11 +43,14 @@ class TarShard:
         self._stack.__exit__(*exc_info)
 
 
-def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: ShardStats) -> None:
-    """One shard's label rows (columns of label_schema(params)) and its stats as a Parquet file, atomically."""
+def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: ShardStats) -> pa.Table:
+    """One shard's label rows (columns of label_schema(params)) and its stats as a Parquet file, atomically; returns
+    the table written (the index can take it from memory)."""
     schema = label_schema(params)
     columns = [pa.array([r[n] for r in rows], f.type) for n, f in zip(schema.names, schema)]
-    _write_table(path, pa.Table.from_arrays(columns, schema=schema.with_metadata({STATS_KEY: stats.to_json()})))
+    table = pa.Table.from_arrays(columns, schema=schema.with_metadata({STATS_KEY: stats.to_json()}))
+    _write_table(path, table)
+    return table
 
 
 def read_stats(path: Path) -> ShardStats:
@@ -60,10 +63,17 @@ def read_fragment(path: Path, schema: pa.Schema) -> pa.Table:
     return pq.read_table(path, schema=schema)
 
 
-def write_index(path: Path, fragments: list[Path], params: Sequence[str]) -> int:
-    """Concatenate shard fragments in order into labels.parquet, atomically; returns the row count."""
+def fragment_stats(table: pa.Table) -> ShardStats:
+    """The ShardStats a fragment table carries (as write_fragment stored them)."""
+    return ShardStats.from_json(table.schema.metadata[STATS_KEY])
+
+
+def write_index(path: Path, fragments: list[Path | pa.Table], params: Sequence[str]) -> int:
+    """Concatenate shard fragments (files, or tables write_fragment returned) in order into labels.parquet,
+    atomically; returns the row count."""
     schema = label_schema(params)
-    table = pa.concat_tables([read_fragment(f, schema) for f in fragments]) if fragments else schema.empty_table()
+    tables = [f.cast(schema) if isinstance(f, pa.Table) else read_fragment(f, schema) for f in fragments]
+    table = pa.concat_tables(tables) if tables else schema.empty_table()
     _write_table(path, table)
     return table.num_rows
 

@@ -2,17 +2,19 @@
 
 floor   = LANCZOS4 remap + PNG encode of the same raw images at the same output size (what any generator pays);
 jobs 1  = `appdgen build --jobs 1` samples/s, default shard size: target >= 0.9 x floor (sampling, maps, APPD,
-          IO <= 10 %);
+          IO <= 10 %); floor and build alternate over --rounds and medians are printed, and the build's own
+          stage timings give the same ratio from inside one run (the floor's work over the build's time);
 jobs 2  = `--jobs 2`, default shard size (from --samples alone): target >= 1.7 x jobs 1;
 check   = the reachability check a build runs before touching --out (KITTI camera 02, paper's ranges);
 --rss   = peak RSS per worker over a 10,000-sample build at 348x128, and whether it grows.
 Both builds and the floor run warm (a 4-sample build first pays the one-time imports, e.g. pyarrow's pandas).
-Run: make bench   (or: python benchmarks/bench_build.py [--samples 120] [--size 1392x512] [--rss])
+Run: make bench   (or: python benchmarks/bench_build.py [--samples 120] [--size 1392x512] [--rounds 3] [--rss])
 """
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -56,13 +58,17 @@ def floor_rate(raw_dir: Path, samples: int, size: tuple[int, int]) -> tuple[floa
     return samples / (time.perf_counter() - start), samples / (time.process_time() - cpu)
 
 
-def build_rate(raw_dir: Path, out: Path, samples: int, size: tuple[int, int], jobs: int) -> tuple[float, float]:
+def build_rate(raw_dir: Path, out: Path, samples: int, size: tuple[int, int], jobs: int) -> tuple[float, float, dict]:
     """Samples/s of a whole build with the default shard size (config and reachability check included): by the
-    wall clock and by this process's CPU time (meaningful for --jobs 1, which runs in this process)."""
+    wall clock and by this process's CPU time (meaningful for --jobs 1, which runs in this process); and the
+    build's own split of its wall time (build.json's stage_seconds, plus "other": set-up, index, build.json)."""
+    shutil.rmtree(out, ignore_errors=True)  # into a fresh --out: deleting the last run's shards is not building
     start, cpu = time.perf_counter(), time.process_time()
     config = BuildConfig(KITTI_02, "02", "kitti", tuple(list_images(str(raw_dir))), samples, size)
-    build(config, out, jobs=jobs, overwrite=True, progress=False)
-    return samples / (time.perf_counter() - start), samples / (time.process_time() - cpu)
+    stages = build(config, out, jobs=jobs, overwrite=True, progress=False)["timings"]["stage_seconds"]
+    wall = time.perf_counter() - start
+    split = {**stages, "other": wall - sum(stages.values())}
+    return samples / wall, samples / (time.process_time() - cpu), split
 
 
 def check_seconds(size: tuple[int, int]) -> tuple[float, float]:
@@ -123,6 +129,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=120)
     parser.add_argument("--size", default="1392x512")
+    parser.add_argument("--rounds", type=int, default=3,
+                        help="floor and --jobs 1 build measured alternately this many times; medians are printed")
     parser.add_argument("--rss", action="store_true", help="also profile worker RSS over 10,000 samples")
     parser.add_argument("--rss-only", action="store_true", help="only profile worker RSS")
     args = parser.parse_args()
@@ -135,15 +143,30 @@ def main() -> None:
             rss_profile(raw, out, 10_000)
             return
         build_rate(raw, out, 4, size, 1)  # warm-up: one-time imports
-        (floor, floor_cpu), (one, one_cpu) = floor_rate(raw, args.samples, size), build_rate(raw, out, args.samples, size, 1)
+        # Alternating rounds: this machine's speed drifts by ~10 % over a minute, which one floor then one build
+        # turned into the ratio; the median of paired rounds does not follow it.
+        rounds = [(floor_rate(raw, args.samples, size), build_rate(raw, out, args.samples, size, 1))
+                  for _ in range(args.rounds)]
         two = build_rate(raw, out, args.samples, size, 2)[0]
+        floor, floor_cpu = (float(np.median([r[0][i] for r in rounds])) for i in (0, 1))
+        one, one_cpu = (float(np.median([r[1][i] for r in rounds])) for i in (0, 1))
+        ratio = float(np.median([b[0] / f[0] for f, b in rounds]))
+        ratio_cpu = float(np.median([b[1] / f[1] for f, b in rounds]))
+        # The build's own split needs no second measurement: the floor's work (decode, remap, encode) timed inside
+        # the build, over the build's wall time, in the same seconds whatever the machine's drift.
+        split = {k: float(np.median([b[2][k] for _, b in rounds])) for k in rounds[0][1][2]}
+        inside = (split["decode"] + split["remap"] + split["encode"]) / sum(split.values())
         shards = BuildConfig(KITTI_02, "02", "kitti", tuple(list_images(str(raw))), args.samples, size).shards
         print(f"output {size[0]}x{size[1]}, {args.samples} samples in {shards} shards (default size), "
-              f"{os.cpu_count()} cores")
+              f"{os.cpu_count()} cores, median of {args.rounds} alternating rounds")
         print(f"floor (remap + PNG encode) {floor:7.1f} samples/s")
-        print(f"build --jobs 1             {one:7.1f} samples/s  ({one / floor:.2f} x floor; target >= 0.9)")
-        print(f"  by CPU time              {one_cpu:7.1f} samples/s  ({one_cpu / floor_cpu:.2f} x floor's "
+        print(f"build --jobs 1             {one:7.1f} samples/s  ({ratio:.2f} x floor; target >= 0.9; rounds "
+              f"{' '.join(f'{b[0] / f[0]:.3f}' for f, b in rounds)})")
+        print(f"  by CPU time              {one_cpu:7.1f} samples/s  ({ratio_cpu:.2f} x floor's "
               f"{floor_cpu:.1f}/s; the same ratio on a busy machine)")
+        print(f"  inside the build         {inside:7.3f} of its time is the floor's work (decode, remap, encode); "
+              "the rest: " + ", ".join(f"{k} {1000 * v / args.samples:.1f}" for k, v in split.items()
+                                       if k not in ("decode", "remap", "encode")) + " ms/sample")
         print(f"build --jobs 2             {two:7.1f} samples/s  ({two / one:.2f} x jobs 1; target >= 1.7)")
         quick, full = check_seconds(size)
         print(f"reachability check         {quick:7.3f} s          (before --out is touched; {full:.3f} s when it "

@@ -19,6 +19,7 @@ from appdgen.atomic import temporary_target
 from appdgen.calibration import PARAMS, Calibration
 from appdgen.crop import valid_region
 from appdgen.distribute import run_unordered
+from appdgen.layout import STAGES
 from appdgen.maps import rectify
 from appdgen.sampling import Sampler
 from helpers import (Setup, assert_one_line_error, assert_same_build, check_interrupted, check_shard, kill_group,
@@ -167,6 +168,9 @@ def test_shards_agree_with_labels_and_build_json(reference_build: Path, setup: S
         assert entry["samples"] == len(mine) and entry["splits"] == dict(Counter(r["split"] for r in mine))
         assert entry["bytes"] == (reference_build / entry["file"]).stat().st_size
     assert build["counts"]["samples"] == setup.samples and build["counts"]["shards"] == setup.shards
+    stages, timings = build["timings"]["stage_seconds"], build["timings"]
+    assert list(stages) == list(STAGES) and all(v > 0 for v in stages.values())
+    assert sum(stages.values()) <= timings["wall_seconds"] * 2  # worker seconds: at most two workers' worth
 
 
 WEBDATASET_READER = """

@@ -19,7 +19,7 @@ from appdgen.calibration import Calibration
 from appdgen.cli import main
 from appdgen.distribute import BACKENDS, resolve_jobs
 from appdgen.errors import AppdgenError
-from appdgen.layout import FORMATS, ShardStats
+from appdgen.layout import FORMATS, STAGES, ShardStats
 from appdgen.render import INTERPOLATIONS
 from appdgen.sampling import UnreachableError
 from appdgen.sources import SPLIT_BY, RawImage, list_images
@@ -207,7 +207,7 @@ def test_cli_choices_come_from_their_owners() -> None:
 
 def test_shard_stats_are_a_typed_record() -> None:
     stats = ShardStats(shard=3, file="shard-000003.tar", samples=2, bytes=1024, splits={"train": 2}, references=0,
-                       evaluations=7, sampler_seconds=0.01, seconds=0.5)
+                       evaluations=7, stage_seconds=dict.fromkeys(STAGES, 0.1), seconds=0.5)
     assert ShardStats.from_json(stats.to_json()) == stats
     assert stats.listing() == {"file": "shard-000003.tar", "samples": 2, "bytes": 1024, "splits": {"train": 2}}
 

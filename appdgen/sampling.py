@@ -43,7 +43,7 @@ ZERO_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "eucm": {"alpha": (0.0, 0.05), "beta": (0.0, 0.15)},
 }
 DEFAULT_APPD_MAX = 1.0  # % of the raw diagonal
-SEARCH_NODES = 257  # crop grid of the search: ~1e-4 px, a third of the full crop's cost
+SEARCH_NODES = 257  # the search crops' grid: within ~0.02 output px on KITTI, ~0.4 of the full crop's time
 COARSE_COLUMNS = 48  # coarse output grid of the search: 48 × 18 for KITTI
 QUICK_RAYS = 8  # rays check_reachable tries before searching for the maximum
 REACH_RAYS = 64  # random rays of the reachability search (plus 4 corners and coordinate ascent)

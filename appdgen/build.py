@@ -38,7 +38,7 @@ from appdgen.maps import Rectification
 from appdgen.progress import Progress
 from appdgen.render import DEFAULT_INTERP, remap_image
 from appdgen.sampling import DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, default_ranges
-from appdgen.shards import TarShard, fragment_stats, read_stats, write_fragment, write_index
+from appdgen.shards import TarShard, read_stats, write_fragment, write_index
 from appdgen.sources import RawImage, check_complete
 
 MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
@@ -190,13 +190,14 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
     start = time.perf_counter()
     sampler = config.sampler()
     rows, evaluations, spent = [], 0, dict.fromkeys(STAGES, 0.0)
-    clock = [time.perf_counter()]
+    last = time.perf_counter()
 
     def lap(stage: str) -> None:
         """Add the time since the last lap to a stage."""
+        nonlocal last
         now = time.perf_counter()
-        spent[stage] += now - clock[0]
-        clock[0] = now
+        spent[stage] += now - last
+        last = now
 
     # Streamed to disk as it grows: a 1,000-sample full-size shard would be ~1 GB in memory.
     with TarShard(out / shard_name(shard)) as tar:
@@ -381,7 +382,7 @@ def _finish(config: BuildConfig, out: Path, made: dict[int, pa.Table], start: fl
     build.json's content."""
     parts = out / PARTS_DIR
     fragments = [made.get(k, parts / fragment_name(k)) for k in range(config.shards)]
-    shards = [fragment_stats(f) if k in made else read_stats(f) for k, f in enumerate(fragments)]
+    shards = [read_stats(f) for f in fragments]
     write_index(out / INDEX, fragments, config.reference.param_names)
     summary = _summary(config, shards, list(made), time.perf_counter() - start, command, skipped)
     atomic_write(out / BUILD_JSON, json.dumps(summary, indent=2).encode())

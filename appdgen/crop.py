@@ -59,6 +59,11 @@ class Crop:
     x1: float
     y1: float
 
+    @classmethod
+    def around(cls, xc: float, yc: float, s: float, aspect: float) -> "Crop":
+        """The rectangle of height s and width aspect·s centred on (xc, yc), normalized."""
+        return cls(xc - 0.5 * aspect * s, yc - 0.5 * s, xc + 0.5 * aspect * s, yc + 0.5 * s)
+
     def camera_matrix(self, size: tuple[int, int]) -> np.ndarray:
         """K̂ (pixels) mapping R onto the output area [−0.5, w−0.5] × [−0.5, h−0.5]."""
         w, h = size
@@ -284,14 +289,20 @@ def _refuse_unbounded(calib: Calibration) -> None:
 
 def _bounded_box(calib: Calibration, r_fold: float, max_fov: float | None) -> tuple[float, float, float, float]:
     """_frame_box cut to the max_fov box (fov_box); AppdgenError if it is still unbounded."""
-    x0, x1, y0, y1 = _frame_box(calib, r_fold, max_fov is not None)
-    if max_fov is not None:
-        half_x, half_y = fov_box(calib, max_fov)
-        x0, x1, y0, y1 = max(x0, -half_x), min(x1, half_x), max(y0, -half_y), min(y1, half_y)
+    x0, x1, y0, y1 = _fov_cut(calib, _frame_box(calib, r_fold, max_fov is not None), max_fov)
     if not np.isfinite([x0, x1, y0, y1]).all():
         raise AppdgenError(f"the frame's axes never leave the {calib.model} lens's valid region, so it is unbounded: "
                            "bound the view with --max-fov DEG, e.g. --max-fov 120")
     return x0, x1, y0, y1
+
+
+def _fov_cut(calib: Calibration, box: tuple[float, float, float, float],
+             max_fov: float | None) -> tuple[float, float, float, float]:
+    """A box (x0, x1, y0, y1), normalized, cut to the max_fov box (fov_box); as it is when max_fov is None."""
+    if max_fov is None:
+        return box
+    half_x, half_y = fov_box(calib, max_fov)
+    return max(box[0], -half_x), min(box[1], half_x), max(box[2], -half_y), min(box[3], half_y)
 
 
 def check_max_fov(max_fov: float | None) -> None:
@@ -388,7 +399,8 @@ def _grid_error(g: tuple[_Graph, ...], aspect: float, s: float, xc: float, yc: f
                 calib: Calibration) -> tuple[float, float]:
     """About how far the nodes' crop is off the exact one: (output pixels at the raw size, either way; raw pixels
     by which its border leaves the frame, the guard's unit), to first order in the curves' errors between nodes."""
-    x0, x1, y0, y1 = xc - 0.5 * aspect * s, xc + 0.5 * aspect * s, yc - 0.5 * s, yc + 0.5 * s
+    nodes_crop = Crop.around(xc, yc, s, aspect)
+    x0, x1, y0, y1 = nodes_crop.x0, nodes_crop.x1, nodes_crop.y0, nodes_crop.y1
     (left, raw_l), (right, raw_r) = g[0].curve_max(y0, y1, 1.0), g[1].curve_max(y0, y1, -1.0)
     (top, raw_t), (bottom, raw_b) = g[2].curve_max(x0, x1, 1.0), g[3].curve_max(x0, x1, -1.0)
     right, bottom = -right, -bottom
@@ -414,9 +426,9 @@ def valid_region(calib: Calibration, nodes: int = GRID_NODES, check: bool = True
 
     `nodes` sets the boundary grids' resolution (coarser than GRID_NODES: a quick estimate without the exactness
     pass, 257 nodes err by up to ~2e-2 output px; finer: tighter bounds, by (1024/(nodes − 1))²); `check=False`
-    skips the final guard (monotone lens over R, R inside the frame), for searches that check their final answer. `max_fov` (degrees,
-    None = unbounded) keeps R within that horizontal field of view: inside the raw-aspect box |x| ≤ tan(max_fov/2)
-    around the principal point (see fov_box).
+    skips the final guard (monotone lens over R, R inside the frame), for searches that check their final answer.
+    `max_fov` (degrees, None = unbounded) keeps R within that horizontal field of view: inside the raw-aspect box
+    |x| ≤ tan(max_fov/2) around the principal point (see fov_box).
     """
     r_fold = radial_fold_radius(calib)
     g = _graphs(calib, r_fold, nodes, _bounded_box(calib, r_fold, max_fov))
@@ -436,7 +448,7 @@ def valid_region(calib: Calibration, nodes: int = GRID_NODES, check: bool = True
             s = s + 2.0 * spare if np.isfinite(spare) else 0.5 * s
             xc, yc, spare = _centre(s, aspect, g, xc, yc)
         s, xc, yc = _grow(g, aspect, s, xc, yc, spare, hi, spare_hi)
-    crop = Crop(xc - 0.5 * aspect * s, yc - 0.5 * s, xc + 0.5 * aspect * s, yc + 0.5 * s)
+    crop = Crop.around(xc, yc, s, aspect)
     if check:
         _check_crop(calib, crop, r_fold)
     return crop
@@ -467,11 +479,8 @@ def search_region(calib: Calibration, box: tuple[float, float, float, float], no
     valid_region). `max_fov` cuts it as valid_region's. Like valid_region's coarse grids, this errs by the
     grid's f''Δ²/8.
     """
-    cut = list(box)
-    if max_fov is not None:
-        half_x, half_y = fov_box(calib, max_fov)
-        cut = [max(cut[0], -half_x), min(cut[1], half_x), max(cut[2], -half_y), min(cut[3], half_y)]
-    crop, g = _nodes_region(calib, nodes, tuple(cut))
+    cut = _fov_cut(calib, box, max_fov)
+    crop, g = _nodes_region(calib, nodes, cut)
     # The room within 1 % of a side the given box set (not max_fov): the box may have cut it, and R with it.
     margin = (0.01 * (box[1] - box[0]),) * 2 + (0.01 * (box[3] - box[2]),) * 2
     if any(cut[i] == box[i] and abs(side - box[i]) < margin[i] for i, side in enumerate(_room(g, crop))):
@@ -493,7 +502,7 @@ def _nodes_region(calib: Calibration, nodes: int,
     g = _graphs(calib, r_fold, nodes, box)
     aspect = _aspect(calib)
     s, xc, yc = _largest(g, aspect, calib)
-    return Crop(xc - 0.5 * aspect * s, yc - 0.5 * s, xc + 0.5 * aspect * s, yc + 0.5 * s), g
+    return Crop.around(xc, yc, s, aspect), g
 
 
 def _room(g: tuple[_Graph, ...], crop: Crop) -> tuple[float, float, float, float]:

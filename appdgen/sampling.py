@@ -6,9 +6,9 @@ walks up from APPD(0) = 0, then Illinois regula falsi once past it). Directions 
 before the box's boundary, whose search does not converge, or (with labels=True) whose stored label would exceed
 appd_max are redrawn. The search evaluates APPD on a coarse output grid (midpoint rule) with a quick crop
 (crop.search_region: its nodes on a box predicted around the crop's room); the stored label is the full output
-grid's, with the exact crop, and depends on the calibration alone. All
-randomness of sample i comes from numpy's SeedSequence([seed, i]). The parameters are the reference's lens
-model's (Calibration.param_names): fx, fy, cx, cy, then its coefficients.
+grid's, with the exact crop, and depends on the calibration alone. All randomness of sample i comes from numpy's
+SeedSequence([seed, i]). The parameters are the reference's lens model's (Calibration.param_names): fx, fy, cx,
+cy, then its coefficients.
 """
 from __future__ import annotations
 
@@ -48,6 +48,11 @@ COARSE_COLUMNS = 48  # coarse output grid of the search: 48 × 18 for KITTI
 QUICK_RAYS = 8  # rays check_reachable tries before searching for the maximum
 REACH_RAYS = 64  # random rays of the reachability search (plus 4 corners and coordinate ascent)
 CAP_RETRIES = 3  # directions whose label exceeds appd_max before the target is lowered just below it
+
+
+def _parameter_vector(calib: Calibration) -> np.ndarray:
+    """A calibration's parameters in Calibration.param_names order (fx, fy, cx, cy in pixels, then coefficients)."""
+    return np.array(list(calib.params().values()))
 
 
 class UnreachableError(AppdgenError):
@@ -163,7 +168,7 @@ class Sampler:
         if odd:
             raise AppdgenError(f"--ranges: {', '.join(odd)} not matching the {self.reference.model} model's "
                                f"parameters ({', '.join(self._names)})")
-        values = np.array([self.reference.params()[n] for n in self._names])
+        values = _parameter_vector(self.reference)
         bounds = [self.ranges[n].offsets(v) for n, v in zip(self._names, values)]
         self._base = values
         self._low = np.array([b[0] for b in bounds])
@@ -210,7 +215,7 @@ class Sampler:
     def _search_box(self, calib: Calibration) -> tuple[float, float, float, float]:
         """A node box (normalized) about calib's room as the reference's room and the secant slopes predict it,
         plus 15 % of its size a side (search_region redoes a crop whose room reaches the box on its own box)."""
-        offsets = np.array([calib.fx, calib.fy, calib.cx, calib.cy, *calib.coeffs]) - self._base
+        offsets = _parameter_vector(calib) - self._base
         slopes = np.where((offsets < 0)[:, None], self._slopes[:, 0], self._slopes[:, 1])
         x0, x1, y0, y1 = self._room + offsets @ slopes
         pad_x, pad_y = 0.15 * (x1 - x0), 0.15 * (y1 - y0)

@@ -53,19 +53,15 @@ def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: S
     return table
 
 
-def read_stats(path: Path) -> ShardStats:
-    """The ShardStats stored with a shard's fragment."""
-    return ShardStats.from_json(pq.read_schema(path).metadata[STATS_KEY])
+def read_stats(fragment: Path | pa.Table) -> ShardStats:
+    """The ShardStats stored with a shard's fragment: its file, or the table write_fragment returned."""
+    schema = fragment.schema if isinstance(fragment, pa.Table) else pq.read_schema(fragment)
+    return ShardStats.from_json(schema.metadata[STATS_KEY])
 
 
 def read_fragment(path: Path, schema: pa.Schema) -> pa.Table:
     """One shard's label rows, read with their schema."""
     return pq.read_table(path, schema=schema)
-
-
-def fragment_stats(table: pa.Table) -> ShardStats:
-    """The ShardStats a fragment table carries (as write_fragment stored them)."""
-    return ShardStats.from_json(table.schema.metadata[STATS_KEY])
 
 
 def write_index(path: Path, fragments: list[Path | pa.Table], params: Sequence[str]) -> int:

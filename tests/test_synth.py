@@ -178,6 +178,16 @@ def test_synth_command_writes_a_calibration_of_any_model(tmp_path, calib, name):
     assert cv2.imread(str(tmp_path / "raw" / "frame_000000.png")).shape == (scaled.height, scaled.width, 3)
 
 
+def test_synth_jobs_follow_builds_joblib_rule(tmp_path):
+    result = run_cli(["synth", "--frames", "1", "--scale", "0.1", "--out", str(tmp_path / "zero"), "--jobs", "0"])
+    assert result.exit_code == 2 and result.output.count("\n") == 1 and "--jobs 0" in result.output
+    assert not (tmp_path / "zero").exists()
+    result = run_cli(["synth", "--frames", "2", "--scale", "0.1", "--out", str(tmp_path / "all"), "--jobs", "-1",
+                      "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert len(list((tmp_path / "all").glob("frame_*.png"))) == 2
+
+
 def test_impossible_distortion_is_an_error():
     with pytest.raises(AppdgenError, match="cannot be inverted"):
         render_frame(KITTI_2011_09_26["02"].replace(k1=-1.0, k2=0.0, k3=0.0), frame_rng(0, 0), scale=0.25)

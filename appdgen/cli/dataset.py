@@ -138,7 +138,9 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
 @click.option("--mount", default="car", type=click.Choice(["car", "loose"]), show_default=True,
               help="Camera pose spread: car (lane keeping and suspension: yaw σ 0.01 rad, pitch ±0.008, roll "
                    "±0.005, height 1.65±0.03 m) or loose (yaw σ 0.12, pitch ±0.05, roll ±0.035, height 1.4-2.1 m).")
-@click.option("--jobs", type=int, default=None, help="Parallel processes [default: all cores]; any N, same bytes.")
+@click.option("--jobs", type=int, default=None,
+              help="Worker processes, as build's --jobs (-1 all cores, -2 all but one, …) [default: all cores]; any "
+                   "N, same bytes.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
 def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
@@ -147,7 +149,7 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
     from appdgen.defaults import DEFAULT_CALIB_PATH
     from appdgen.formats import save
     from appdgen.progress import Progress
-    from appdgen.distribute import default_jobs
+    from appdgen.distribute import resolve_jobs
     from appdgen.synth import MOUNTS, calibration_name, scale_calibration, synthesize
 
     if frames < 1:
@@ -158,7 +160,7 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
     scaled = scale_calibration(calib, scale)
     out = Path(out_dir)
     bar = Progress(frames, unit="frames", enabled=not quiet)
-    synthesize(calib, frames, out, seed, scale, progress=bar.advance, jobs=jobs or default_jobs(), mount=MOUNTS[mount])
+    synthesize(calib, frames, out, seed, scale, progress=bar.advance, jobs=resolve_jobs(jobs), mount=MOUNTS[mount])
     name = calibration_name(scaled)
     save(scaled, out / name)
     click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}) and {name} to {out_dir}")

@@ -1,5 +1,5 @@
 """appdgen: self-labelled data for learning camera miscalibration detection."""
-from appdgen.calibration import PARAMS, Calibration
+from appdgen.calib.calibration import PARAMS, Calibration
 from appdgen.errors import AppdgenError
 
 __version__ = "0.2.0"

@@ -24,12 +24,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from appdgen.build import BuildConfig, build
-from appdgen.calibration import Calibration
-from appdgen.images import encode_image
-from appdgen.maps import rectify
-from appdgen.sampling import Sampler
-from appdgen.sources import list_images
+from appdgen.dataset.build import BuildConfig, build
+from appdgen.calib.calibration import Calibration
+from appdgen.dataset.images import encode_image
+from appdgen.geometry.maps import rectify
+from appdgen.sampling.sampler import Sampler
+from appdgen.dataset.sources import list_images
 
 KITTI_02 = Calibration(1392, 512, 959.791, 956.9251, 696.0217, 224.1806,
                        -0.3691481, 0.1968681, 0.001353473, 0.0005677587, -0.06770705)
@@ -90,7 +90,7 @@ def rss_profile(raw_dir: Path, out: Path, samples: int) -> None:
     cmd = [sys.executable, "-m", "appdgen.cli", "build", "--calib", str(raw_dir / "calib.yaml"), "--images",
            str(raw_dir), "--out", str(out), "--samples", str(samples), "--size", "348x128", "--jobs", "2",
            "--shard-size", "500", "--overwrite", "--quiet"]
-    from appdgen.formats import save
+    from appdgen.calib.formats import save
 
     save(KITTI_02, raw_dir / "calib.yaml")
     proc = subprocess.Popen(cmd)

@@ -10,10 +10,10 @@ import time
 import cv2
 import numpy as np
 
-from appdgen.appd import appd_px
-from appdgen.calibration import Calibration
-from appdgen.maps import rectify
-from appdgen.sampling import Sampler
+from appdgen.geometry.appd import appd_px
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.maps import rectify
+from appdgen.sampling.sampler import Sampler
 
 KITTI_02 = Calibration(1392, 512, 959.791, 956.9251, 696.0217, 224.1806,
                        -0.3691481, 0.1968681, 0.001353473, 0.0005677587, -0.06770705)

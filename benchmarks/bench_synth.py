@@ -19,10 +19,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from appdgen.calibration import Calibration
-from appdgen.defaults import DEFAULT_CALIB_PATH
-from appdgen.formats import load
-from appdgen.distribute import run_unordered
+from appdgen.calib.calibration import Calibration
+from appdgen.calib.defaults import DEFAULT_CALIB_PATH
+from appdgen.calib.formats import load
+from appdgen.util.distribute import run_unordered
 from appdgen.synth import CAR, _chunks, _write_frames
 
 

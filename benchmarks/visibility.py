@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from appdgen.appd import appd_px
-from appdgen.calibration import PARAMS, Calibration
-from appdgen.distortion import undistort_pixels
-from appdgen.maps import Rectification, rectify
-from appdgen.sampling import parse_ranges
+from appdgen.geometry.appd import appd_px
+from appdgen.calib.calibration import PARAMS, Calibration
+from appdgen.geometry.distortion import undistort_pixels
+from appdgen.geometry.maps import Rectification, rectify
+from appdgen.sampling.sampler import parse_ranges
 
 STRIDE = 4  # output pixels between evaluated grid points: the split is smooth, a coarse grid suffices
 

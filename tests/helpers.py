@@ -19,11 +19,11 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner, Result
 
-import appdgen.atomic
-from appdgen.calibration import Calibration
+import appdgen.util.atomic
+from appdgen.calib.calibration import Calibration
 from appdgen.cli import main
-from appdgen.crop import valid_region
-from appdgen.sampling import Sampler
+from appdgen.geometry.crop import valid_region
+from appdgen.sampling.sampler import Sampler
 
 
 def scaled(calib: Calibration, factor: int) -> Calibration:
@@ -174,7 +174,7 @@ def check_interrupted(out: Path, setup: Setup) -> None:
 
 
 class FullDisk:
-    """Stands in for `os` inside appdgen.atomic: the Nth fsync fails with ENOSPC, as on a full disk."""
+    """Stands in for `os` inside appdgen.util.atomic: the Nth fsync fails with ENOSPC, as on a full disk."""
 
     def __init__(self, fail_at: int) -> None:
         self.fail_at, self.calls = fail_at, 0
@@ -194,7 +194,7 @@ class FullDisk:
 def run_with_full_disk(args: list[str], fail_at: int) -> Result:
     """`appdgen ARGS` in this process (use --jobs 1) with the fail_at-th atomic write failing for lack of space."""
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(appdgen.atomic, "os", FullDisk(fail_at))
+        patch.setattr(appdgen.util.atomic, "os", FullDisk(fail_at))
         return run_cli(args)
 
 

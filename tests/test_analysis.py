@@ -1,4 +1,4 @@
-"""appdgen.analysis and the sweep/reproj/drift commands: laws of each analysis, exact special cases, the CLI."""
+"""appdgen.analysis.studies and the sweep/reproj/drift commands: laws of each analysis, exact special cases, the CLI."""
 from __future__ import annotations
 
 import csv
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from appdgen.analysis import (
+from appdgen.analysis.studies import (
     PAPER_RANGES,
     drift_matrix,
     physical_error,
@@ -26,14 +26,14 @@ from appdgen.analysis import (
     synthetic_error,
     to_output,
 )
-from appdgen.appd import appd_px
-from appdgen.calibration import Calibration
+from appdgen.geometry.appd import appd_px
+from appdgen.calib.calibration import Calibration
 from appdgen.cli import main
 from appdgen.cli.analyses import file_labels
-from appdgen.distortion import distort_to_pixels
+from appdgen.geometry.distortion import distort_to_pixels
 from appdgen.errors import AppdgenError
-from appdgen.formats import save
-from appdgen.maps import rectify
+from appdgen.calib.formats import save
+from appdgen.geometry.maps import rectify
 from conftest import KITTI_2011_09_26
 from test_geometry import lens_pixels
 

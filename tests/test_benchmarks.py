@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from appdgen.defaults import default_calibration
-from appdgen.maps import rectify
+from appdgen.calib.defaults import default_calibration
+from appdgen.geometry.maps import rectify
 from appdgen.synth import scale_calibration
 
 KITTI_02_QUARTER = scale_calibration(default_calibration("02"), 0.25)  # the demo's camera, 348x128

@@ -14,14 +14,14 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from appdgen.appd import appd
-from appdgen.atomic import temporary_target
-from appdgen.calibration import PARAMS, Calibration
-from appdgen.crop import valid_region
-from appdgen.distribute import run_unordered
-from appdgen.layout import STAGES
-from appdgen.maps import rectify
-from appdgen.sampling import Sampler
+from appdgen.geometry.appd import appd
+from appdgen.util.atomic import temporary_target
+from appdgen.calib.calibration import PARAMS, Calibration
+from appdgen.geometry.crop import valid_region
+from appdgen.util.distribute import run_unordered
+from appdgen.dataset.layout import STAGES
+from appdgen.geometry.maps import rectify
+from appdgen.sampling.sampler import Sampler
 from helpers import (Setup, assert_one_line_error, assert_same_build, check_interrupted, check_shard, kill_group,
                      kitti_text, raw_image, run_cli, spawn_cli, tree_digest, write_png)
 

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from appdgen.appd import appd
-from appdgen.calibration import Calibration
+from appdgen.geometry.appd import appd
+from appdgen.calib.calibration import Calibration
 from appdgen.cli import main
-from appdgen.distortion import distort_to_pixels
+from appdgen.geometry.distortion import distort_to_pixels
 from appdgen.errors import AppdgenError
-from appdgen.formats import save
-from appdgen.maps import rectify
+from appdgen.calib.formats import save
+from appdgen.geometry.maps import rectify
 
 SMALL = (160, 120)
 #: One undistorted 640×480 pinhole camera (HFOV ≈ 77°), written in three lens models that reduce to it exactly:
@@ -168,7 +168,7 @@ def test_sweep_defaults_to_the_models_parameters(files, tmp_path):
 
 
 def test_sweep_with_max_fov_matches_the_library(files):
-    from appdgen.analysis import sweep
+    from appdgen.analysis.studies import sweep
 
     result = run("sweep", "--calib", files["fisheye"], "--params", "k2", "--from", "-0.1", "--to", "0.1",
                  "--steps", "3", "--size", "160x120", "--max-fov", "120")
@@ -230,7 +230,7 @@ def fit_double_sphere(calib: Calibration, max_angle: float) -> Calibration:
 
 def test_tumvi_kannala_brandt_against_a_fitted_double_sphere(shared, tmp_path):
     tumvi = shared / "formats" / "kalibr_tumvi_pinhole_equi.yaml"
-    from appdgen.formats import load
+    from appdgen.calib.formats import load
 
     ds = fit_double_sphere(load(tumvi, "cam0"), 60)
     save(ds, tmp_path / "tumvi_ds.json")

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from appdgen.defaults import DEFAULT_CALIB_PATH, default_calibration
+from appdgen.calib.defaults import DEFAULT_CALIB_PATH, default_calibration
 from appdgen.errors import AppdgenError
 from conftest import KITTI_2011_09_26
 

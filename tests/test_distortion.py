@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from appdgen.calibration import Calibration
-from appdgen.distortion import (
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.distortion import (
     distort_normalized,
     distort_to_pixels,
     project,

@@ -58,7 +58,7 @@ def reference_sample(root: Path) -> tuple[str, np.ndarray]:
 
 
 def test_synth_writes_a_kb4_camera_that_needs_a_fov_bound(chain):
-    from appdgen.formats import load
+    from appdgen.calib.formats import load
 
     calib = load(chain / "raw" / "calibration.yaml")
     assert (calib.model, calib.size) == ("kb4", (128, 128))

@@ -1,4 +1,4 @@
-"""appdgen.formats: real files, small fixtures, malformed files, writers, and fuzzing that only AppdgenError escapes."""
+"""appdgen.calib.formats: real files, small fixtures, malformed files, writers, and fuzzing that only AppdgenError escapes."""
 from __future__ import annotations
 
 import csv
@@ -16,8 +16,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from appdgen import AppdgenError, Calibration, lens
-from appdgen import formats
-from appdgen.formats import list_cameras, load, save
+from appdgen.calib import formats
+from appdgen.calib.formats import list_cameras, load, save
 
 FIXTURES = Path(__file__).parent / "data" / "calib"
 VALID = sorted(p for p in FIXTURES.iterdir() if not p.name.startswith("bad_"))

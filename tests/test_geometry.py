@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from appdgen.appd import appd, appd_px
-from appdgen.calibration import Calibration
-from appdgen.crop import check_output_size, room, search_region, valid_region
+from appdgen.geometry.appd import appd, appd_px
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.crop import check_output_size, room, search_region, valid_region
 from appdgen.errors import AppdgenError
-from appdgen.maps import rectify
+from appdgen.geometry.maps import rectify
 from conftest import KITTI_2011_09_26, PAPER_RANGES
 
 
@@ -236,9 +236,9 @@ def test_output_size_must_keep_the_raw_aspect(kitti02):
 
 from test_lens import CAMERAS, TUMVI, reference_pixels  # noqa: E402  (OpenCV / the papers' equations)
 
-from appdgen import formats  # noqa: E402
-from appdgen.crop import fov_box  # noqa: E402
-from appdgen.distortion import radial_fold_radius  # noqa: E402
+from appdgen.calib import formats  # noqa: E402
+from appdgen.geometry.crop import fov_box  # noqa: E402
+from appdgen.geometry.distortion import radial_fold_radius  # noqa: E402
 
 MODEL_CASES = {**{name: (calib, None) for name, calib in CAMERAS.items() if name != "kb4"},
                "kb4-narrow": (TUMVI.replace(fx=2 * TUMVI.fx, fy=2 * TUMVI.fy), None), "kb4-tumvi-120": (TUMVI, 120.0)}
@@ -387,7 +387,7 @@ def test_cross_model_appd_of_one_fisheye_is_small():
 
 def perturbed(calib: Calibration, n: int, seed: int) -> list[Calibration]:
     """n calibrations drawn uniformly (seeded) from the sampler's default ranges around calib."""
-    from appdgen.sampling import default_ranges
+    from appdgen.sampling.sampler import default_ranges
 
     params, ranges = calib.params(), default_ranges(calib)
     bounds = {name: ranges[name].offsets(params[name]) for name in calib.param_names}

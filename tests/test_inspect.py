@@ -17,12 +17,12 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from appdgen.build import BuildConfig, build
+from appdgen.dataset.build import BuildConfig, build
 from appdgen.cli import main
-from appdgen.inspection import histogram, sheet_layout, spread, verify
-from appdgen.calibration import PARAMS
-from appdgen.layout import label_schema
-from appdgen.sources import RawImage
+from appdgen.dataset.inspection import histogram, sheet_layout, spread, verify
+from appdgen.calib.calibration import PARAMS
+from appdgen.dataset.layout import label_schema
+from appdgen.dataset.sources import RawImage
 from conftest import KITTI_2011_09_26
 
 SAMPLES, SHARD_SIZE, SIZE = 12, 4, (174, 64)  # 3 shards; 174x64 keeps KITTI's 1392:512 aspect

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from appdgen import lens
-from appdgen.calibration import Calibration
-from appdgen.distortion import pixel_rays, project, undistort_pixels
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.distortion import pixel_rays, project, undistort_pixels
 from appdgen.errors import AppdgenError
 from appdgen.lens import numerics
 from conftest import KITTI_2011_09_26

@@ -13,16 +13,16 @@ import cv2
 import numpy as np
 import pytest
 
-import appdgen.build
-from appdgen.build import BuildConfig, default_shard_size, read_raw
-from appdgen.calibration import Calibration
+import appdgen.dataset.build
+from appdgen.dataset.build import BuildConfig, default_shard_size, read_raw
+from appdgen.calib.calibration import Calibration
 from appdgen.cli import main
-from appdgen.distribute import BACKENDS, resolve_jobs
+from appdgen.util.distribute import BACKENDS, resolve_jobs
 from appdgen.errors import AppdgenError
-from appdgen.layout import FORMATS, STAGES, ShardStats
-from appdgen.render import INTERPOLATIONS
-from appdgen.sampling import UnreachableError
-from appdgen.sources import SPLIT_BY, RawImage, list_images
+from appdgen.dataset.layout import FORMATS, STAGES, ShardStats
+from appdgen.geometry.remap import INTERPOLATIONS
+from appdgen.sampling.sampler import UnreachableError
+from appdgen.dataset.sources import SPLIT_BY, RawImage, list_images
 from helpers import Setup, assert_one_line_error, assert_same_build, kitti_text, run_cli, run_with_full_disk
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,7 +49,7 @@ def test_a_mid_build_refusal_of_the_ranges_says_to_overwrite(setup: Setup, tmp_p
         raise UnreachableError("--appd-max 1: after 200 directions none reached APPD 0.999 % inside the ranges; "
                                "lower --appd-max or widen --ranges")
 
-    monkeypatch.setattr(appdgen.build.Sampler, "draw", unreachable)
+    monkeypatch.setattr(appdgen.dataset.build.Sampler, "draw", unreachable)
     line = assert_one_line_error(run_cli(setup.args(tmp_path / "out")), "lower --appd-max or widen --ranges")
     assert "rebuild with --overwrite" in line and "rerun with --resume" not in line
 
@@ -239,8 +239,8 @@ def test_make_test_core_runs_the_suite_without_torch() -> None:
 
 @pytest.mark.parametrize("interp", list(INTERPOLATIONS))
 def test_remap_gives_the_bytes_of_opencvs_float_maps(interp: str, small_camera: Calibration) -> None:
-    from appdgen.maps import rectify
-    from appdgen.render import remap_image
+    from appdgen.geometry.maps import rectify
+    from appdgen.geometry.remap import remap_image
 
     raw = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 256, (64, 174, 3), np.uint8), (0, 0), 1.0)
     rect = rectify(small_camera.perturb(fx=0.07, k1=0.1), (87, 32))
@@ -253,8 +253,8 @@ def test_an_image_that_fails_in_a_worker_gets_a_hint_that_works(setup: Setup, tm
     def broken(path: Path) -> np.ndarray:
         raise AppdgenError(f"{path}: not a readable image")
 
-    monkeypatch.setattr(appdgen.build, "read_image", broken)
-    appdgen.build._decoded_version.cache_clear()
+    monkeypatch.setattr(appdgen.dataset.build, "read_image", broken)
+    appdgen.dataset.build._decoded_version.cache_clear()
     line = assert_one_line_error(run_cli(setup.args(tmp_path / "out")), "not a readable image")
     assert "replace the file and rerun with --resume" in line and "rebuild with --overwrite" in line
-    appdgen.build._decoded_version.cache_clear()
+    appdgen.dataset.build._decoded_version.cache_clear()

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from appdgen import lens
-from appdgen.appd import appd
-from appdgen.calibration import Calibration
-from appdgen.crop import valid_region
-from appdgen.distribute import run_unordered
+from appdgen.geometry.appd import appd
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.crop import valid_region
+from appdgen.util.distribute import run_unordered
 from appdgen.errors import AppdgenError
-from appdgen.crop import check_max_fov
-from appdgen.sampling import (PAPER_RANGES, ZERO_RANGES, Range, Sampler, UnreachableError,
+from appdgen.geometry.crop import check_max_fov
+from appdgen.sampling.sampler import (PAPER_RANGES, ZERO_RANGES, Range, Sampler, UnreachableError,
                               default_ranges, paper_ranges, parse_ranges)
 from helpers import sampler_draws, scaled
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from appdgen import lens
-from appdgen.calibration import Calibration
-from appdgen.distortion import pixel_rays
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.distortion import pixel_rays
 from appdgen.errors import AppdgenError
-from appdgen.formats import load
+from appdgen.calib.formats import load
 from appdgen.synth import (
     _lens_maps,
     frame_rng,
@@ -165,7 +165,7 @@ def test_fisheye_jobs_give_the_same_bytes(tmp_path):
 
 @pytest.mark.parametrize("calib, name", [(TUMVI_KB4, "calibration.yaml"), (WIDE_DS, "calibration.json")])
 def test_synth_command_writes_a_calibration_of_any_model(tmp_path, calib, name):
-    from appdgen.formats import save
+    from appdgen.calib.formats import save
 
     source = tmp_path / "lens.json"
     save(calib, source)

@@ -323,7 +323,7 @@ def test_running_median_verdict():
 
 def test_predict_with_calib_rectifies_raw_images(trained, tmp_path, capsys):
     from appdgen import Calibration
-    from appdgen.formats import save
+    from appdgen.calib.formats import save
 
     # A square raw camera (the network input is 128x128), rectified by appdgen itself before the model sees it.
     save(Calibration(256, 256, 200.0, 200.0, 127.5, 127.5, -0.1, 0.01), tmp_path / "calib.yaml")
@@ -339,7 +339,7 @@ def test_predict_with_calib_rectifies_raw_images(trained, tmp_path, capsys):
 
 
 def test_predict_calib_without_appdgen_support_is_a_clear_error(trained, tmp_path, monkeypatch, capsys):
-    monkeypatch.setitem(sys.modules, "appdgen.formats", None)
+    monkeypatch.setitem(sys.modules, "appdgen.calib.formats", None)
     with pytest.raises(SystemExit) as exc:
         run_cli(["predict", "--ckpt", trained / "last.pt", "--calib", "x.yaml", tmp_path], capsys)
     assert exc.value.code == 2 and "appdgen" in capsys.readouterr().err

@@ -17,7 +17,7 @@ import torch
 import webdataset as wds
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
-from appdgen.sources import KITTI_DRIVE
+from appdgen.dataset.sources import KITTI_DRIVE
 from train.errors import TrainError
 
 IMAGE_EXTS = ("png", "jpg", "jpeg", "npy")

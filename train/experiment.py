@@ -81,15 +81,15 @@ def check(opts: ExperimentOptions) -> None:
 
 def bundled_camera():
     """KITTI 2011_09_26 camera 02, the calibration shipped with appdgen (1392x512)."""
-    from appdgen.defaults import DEFAULT_CALIB_PATH
-    from appdgen.formats import load
+    from appdgen.calib.defaults import DEFAULT_CALIB_PATH
+    from appdgen.calib.formats import load
 
     return load(DEFAULT_CALIB_PATH, "02")
 
 
 def synthesize_frames(opts: ExperimentOptions, raw: Path, jobs: int) -> Path:
     """raw/{train,val,test}/frame_*.png and raw/calibration.yaml; returns the calibration's path."""
-    from appdgen.formats import save
+    from appdgen.calib.formats import save
     from appdgen.synth import MOUNTS, calibration_name, synthesize
 
     calib = bundled_camera()
@@ -105,9 +105,9 @@ def synthesize_frames(opts: ExperimentOptions, raw: Path, jobs: int) -> Path:
 
 def build_samples(opts: ExperimentOptions, raw: Path, calib_path: Path, shards: Path, jobs: int) -> dict:
     """One build over raw/ (split = folder), per_frame(opts) samples per frame; returns build.json."""
-    from appdgen.build import BuildConfig, build
-    from appdgen.formats import load
-    from appdgen.sources import list_images
+    from appdgen.dataset.build import BuildConfig, build
+    from appdgen.calib.formats import load
+    from appdgen.dataset.sources import list_images
 
     images = list_images(str(raw), "parent")
     total = per_frame(opts) * len(images)
@@ -122,7 +122,7 @@ def build_samples(opts: ExperimentOptions, raw: Path, calib_path: Path, shards: 
 
 def run(opts: ExperimentOptions) -> dict:
     """All stages; returns the test metrics, the fit summary and each stage's seconds."""
-    from appdgen.distribute import default_jobs
+    from appdgen.util.distribute import default_jobs
 
     from train import runtime
     from train.evaluate import evaluate

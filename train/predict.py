@@ -88,9 +88,9 @@ def rectifier(calib_path: str, camera: str | None, size: tuple[int, int], rule: 
     """Rectify raw images with a calibration (cropped by the training rule, rescaled to size) as a deployed robot
     would."""
     try:
-        from appdgen.formats import load
-        from appdgen.maps import rectify
-        from appdgen.render import remap_image
+        from appdgen.calib.formats import load
+        from appdgen.geometry.maps import rectify
+        from appdgen.geometry.remap import remap_image
     except ImportError as exc:
         raise TrainError(f"--calib needs appdgen's formats/maps/render modules, which are missing here ({exc}); "
                          "rectify the images with `appdgen` first and predict without --calib") from None

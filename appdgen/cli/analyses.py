@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from appdgen.calibration import Calibration
+from appdgen.calib.calibration import Calibration
 from appdgen.cli.base import (
     fail_cleanly,
     parse_size,
@@ -55,7 +55,7 @@ def sweep(calib_path, camera, params, start, stop, steps, size, max_fov, csv_pat
     The default output size is the raw size, for fidelity; a quarter of it per side (--size 348x128 for KITTI)
     runs about 3 times faster and moves KITTI's APPD by under 0.0001 % of the diagonal.
     """
-    from appdgen.analysis import sweep as sweep_appd, sweep_fractions
+    from appdgen.analysis.studies import sweep as sweep_appd, sweep_fractions
 
     start_plot(plot_path)
     calib = load_calibration(calib_path, camera)
@@ -79,7 +79,7 @@ def sweep(calib_path, camera, params, start, stop, steps, size, max_fov, csv_pat
         write_csv(csv_path, ["t", *(f"appd_pct_{n}" for n in curves)],
                   ([float(ti), *(float(curves[n][i]) for n in curves)] for i, ti in enumerate(t)))
     if plot_path:
-        from appdgen.plots import plot_sweep
+        from appdgen.analysis.plots import plot_sweep
 
         plot_sweep(Path(plot_path), t, curves, f"APPD as one parameter changes, others fixed: "
                    f"{describe_source(calib_path, camera)} (output {w}x{h})", calib.diagonal, calib.param_names)
@@ -119,7 +119,7 @@ def reproj(calib_path, camera, samples, scenario, seed, points, size, max_fov, c
     Errors are in pixels of the rectified output (--size, default the raw size); APPD is in % of the raw
     diagonal. Prints Spearman's rank correlation between APPD and each scenario's error.
     """
-    from appdgen.analysis import SCENARIOS, reprojection_study, spearman
+    from appdgen.analysis.studies import SCENARIOS, reprojection_study, spearman
 
     start_plot(plot_path)
     calib = load_calibration(calib_path, camera)
@@ -139,7 +139,7 @@ def reproj(calib_path, camera, samples, scenario, seed, points, size, max_fov, c
         write_csv(csv_path, header, ([i, *study.fractions[i].tolist(), study.appd_px[i], study.appd_pct[i],
                                       *(study.reproj_px[n][i] for n in scenarios)] for i in range(samples)))
     if plot_path:
-        from appdgen.plots import plot_reproj
+        from appdgen.analysis.plots import plot_reproj
 
         plot_reproj(Path(plot_path), study, f"APPD against reprojection error: {samples} calibrations sampled around {source}")
 
@@ -153,7 +153,7 @@ def file_labels(paths: Sequence[str]) -> list[str]:
 
 def common_cameras(paths: Sequence[str]) -> list[str]:
     """The camera names every file has, in the first file's order."""
-    from appdgen.formats import list_cameras
+    from appdgen.calib.formats import list_cameras
 
     listed = [list_cameras(Path(p)) for p in paths]
     common = [name for name in listed[0] if all(name in other for other in listed[1:])]
@@ -165,9 +165,9 @@ def common_cameras(paths: Sequence[str]) -> list[str]:
 def rounding_note(labels: Sequence[str], calibs: Sequence[Calibration], size: tuple[int, int] | None,
                   max_fov: float | None = None) -> str | None:
     """A note naming calibrations with at most 3 significant digits, with the APPD that such rounding alone gives."""
-    from appdgen.analysis import round_significant
-    from appdgen.appd import appd_px
-    from appdgen.maps import rectify as rectify_calibration
+    from appdgen.analysis.studies import round_significant
+    from appdgen.geometry.appd import appd_px
+    from appdgen.geometry.maps import rectify as rectify_calibration
 
     rounded = [label for label, c in zip(labels, calibs) if round_significant(c, 3) == c]
     full = [(label, c) for label, c in zip(labels, calibs) if label not in rounded]
@@ -214,7 +214,7 @@ def drift(calib_paths, cameras, size, max_fov, as_json, plot_path):
         for camera, table in tables.items():
             echo_drift(camera, table, labels)
     if plot_path:
-        from appdgen.plots import plot_drift
+        from appdgen.analysis.plots import plot_drift
 
         w, h = next(iter(tables.values()))["size"]
         plot_drift(Path(plot_path), {cam: (labels, t["appd_px"], t["diagonal_px"]) for cam, t in tables.items()},
@@ -224,7 +224,7 @@ def drift(calib_paths, cameras, size, max_fov, as_json, plot_path):
 def drift_table(paths: Sequence[str], labels: Sequence[str], camera: str, size: tuple[int, int] | None,
                 max_fov: float | None = None) -> dict:
     """One camera's APPD matrix between the files (raw px and %), its output size and diagonal, a rounding note."""
-    from appdgen.analysis import drift_matrix
+    from appdgen.analysis.studies import drift_matrix
 
     calibs = [load_calibration(p, camera) for p in paths]
     matrix = drift_matrix(calibs, size, labels, max_fov)

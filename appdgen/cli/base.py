@@ -12,7 +12,7 @@ from typing import IO, Any, Callable
 import click
 
 from appdgen import __version__
-from appdgen.calibration import Calibration
+from appdgen.calib.calibration import Calibration
 from appdgen.errors import AppdgenError
 
 
@@ -83,7 +83,7 @@ def parse_assignments(option: str, items: tuple[str, ...], calib: Calibration) -
 
 def load_calibration(path: str, camera: str | None) -> Calibration:
     """Read a calibration file of any supported format (errors name the file)."""
-    from appdgen.formats import load
+    from appdgen.calib.formats import load
 
     return load(Path(path), camera=camera)
 
@@ -152,7 +152,7 @@ def format_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 def write_csv(path: str, header: Sequence[str], rows: Iterable[Sequence[object]]) -> None:
     """Write a CSV file atomically: numbers at full precision, NaN as 'nan'."""
-    from appdgen.atomic import write_file
+    from appdgen.util.atomic import write_file
 
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
@@ -175,6 +175,6 @@ def describe_source(path: str, camera: str | None) -> str:
 def start_plot(plot_path: str | None) -> None:
     """Fail before the computation, not after it, when --plot is asked without matplotlib."""
     if plot_path:
-        from appdgen.plots import require
+        from appdgen.analysis.plots import require
 
         require()

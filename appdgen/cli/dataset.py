@@ -16,11 +16,11 @@ from appdgen.cli.base import (
     size_option,
     main,
 )
-from appdgen.distribute import BACKENDS
+from appdgen.util.distribute import BACKENDS
 from appdgen.errors import AppdgenError
-from appdgen.layout import FORMATS
-from appdgen.render import DEFAULT_INTERP, INTERPOLATIONS
-from appdgen.sources import SPLIT_BY
+from appdgen.dataset.layout import FORMATS
+from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
+from appdgen.dataset.sources import SPLIT_BY
 
 
 VERIFY_LINES = 20  # problems printed; the rest are counted
@@ -28,8 +28,8 @@ VERIFY_LINES = 20  # problems printed; the rest are counted
 
 def choose_camera(calib_path: str, camera: str | None, images) -> str:
     """--camera, else the KITTI image_0X folder, else the only camera whose size matches the images."""
-    from appdgen.formats import list_cameras
-    from appdgen.sources import image_size, kitti_camera
+    from appdgen.calib.formats import list_cameras
+    from appdgen.dataset.sources import image_size, kitti_camera
 
     if camera is not None:
         return camera
@@ -94,10 +94,10 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
           ranges, appd_max, zero_fraction, max_fov, interp, split_by, skip_bad, resume, overwrite, backend, scheduler,
           quiet):
     """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
-    from appdgen.build import BuildConfig, build as run_build
-    from appdgen.distribute import resolve_jobs
-    from appdgen.sampling import parse_ranges
-    from appdgen.sources import check_images, list_images
+    from appdgen.dataset.build import BuildConfig, build as run_build
+    from appdgen.util.distribute import resolve_jobs
+    from appdgen.sampling.sampler import parse_ranges
+    from appdgen.dataset.sources import check_images, list_images
 
     if samples is not None and per_image is not None:
         raise AppdgenError("give --samples or --per-image, not both")
@@ -146,10 +146,10 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
 def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
     """Render procedural street frames as the (scaled) camera sees them, through any lens model, plus its
     calibration (calibration.yaml; calibration.json for ds/eucm, which OpenCV YAML cannot hold)."""
-    from appdgen.defaults import DEFAULT_CALIB_PATH
-    from appdgen.formats import save
-    from appdgen.progress import Progress
-    from appdgen.distribute import resolve_jobs
+    from appdgen.calib.defaults import DEFAULT_CALIB_PATH
+    from appdgen.calib.formats import save
+    from appdgen.util.progress import Progress
+    from appdgen.util.distribute import resolve_jobs
     from appdgen.synth import MOUNTS, calibration_name, scale_calibration, synthesize
 
     if frames < 1:
@@ -174,8 +174,8 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
 @fail_cleanly
 def inspect_command(out_dir, sheet, count):
     """Summarise a finished build: counts, splits, APPD histogram, sampler speed, size on disk."""
-    from appdgen.images import write_image
-    from appdgen.inspection import contact_sheet, summary
+    from appdgen.dataset.images import write_image
+    from appdgen.dataset.inspection import contact_sheet, summary
 
     click.echo(summary(Path(out_dir)))
     if sheet is not None:
@@ -189,7 +189,7 @@ def inspect_command(out_dir, sheet, count):
 @fail_cleanly
 def verify_command(out_dir):
     """Re-read every shard and check it against labels.parquet and build.json (exit 1 on any mismatch)."""
-    from appdgen.inspection import verify
+    from appdgen.dataset.inspection import verify
 
     report = verify(Path(out_dir))
     checked = f"{report.samples} samples in {report.shards} shards"
@@ -218,7 +218,7 @@ def verify_command(out_dir):
 @fail_cleanly
 def manifest(kitti_root, camera, split_file, nuscenes_root, channel, output):
     """Write image lists ('PATH SPLIT' lines) for build --images from a local KITTI raw or nuScenes tree."""
-    from appdgen.manifest import kitti_manifests, nuscenes_manifest
+    from appdgen.dataset.manifest import kitti_manifests, nuscenes_manifest
 
     if (kitti_root is None) == (nuscenes_root is None):
         raise AppdgenError("give a KITTI_ROOT or --nuscenes ROOT (one of them)")

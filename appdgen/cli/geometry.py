@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from appdgen.calibration import Calibration
-from appdgen.render import DEFAULT_INTERP, INTERPOLATIONS
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
 from appdgen.cli.base import (
     fail_cleanly,
     parse_size,
@@ -49,8 +49,8 @@ def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size,
     rectification maps, whatever model made them. --set and --perturb apply to the second calibration and take
     its model's parameter names.
     """
-    from appdgen.appd import appd_px, px_to_pct
-    from appdgen.maps import rectify
+    from appdgen.geometry.appd import appd_px, px_to_pct
+    from appdgen.geometry.maps import rectify
 
     reference = load_calibration(calib_path, camera)
     other = load_calibration(against_path, against_camera or camera) if against_path else reference
@@ -91,9 +91,9 @@ def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size,
 @fail_cleanly
 def rectify(calib_path, camera, sets, perturbs, size, max_fov, interp, image, output):
     """Rectify, crop and rescale one raw image with a (perturbed) calibration."""
-    from appdgen.images import read_image, write_image
-    from appdgen.maps import rectify as rectify_calibration
-    from appdgen.render import remap_image
+    from appdgen.dataset.images import read_image, write_image
+    from appdgen.geometry.maps import rectify as rectify_calibration
+    from appdgen.geometry.remap import remap_image
 
     calib = modified(load_calibration(calib_path, camera), sets, perturbs)
     rect = rectify_calibration(calib, parse_size(size), max_fov=max_fov)

@@ -17,12 +17,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from appdgen.calibration import Calibration
-from appdgen.distortion import pixel_rays, radial_fold_radius, undistort_pixels
-from appdgen.distribute import run_unordered
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.distortion import pixel_rays, radial_fold_radius, undistort_pixels
+from appdgen.util.distribute import run_unordered
 from appdgen.errors import AppdgenError
-from appdgen.formats import native_suffix
-from appdgen.images import write_image
+from appdgen.calib.formats import native_suffix
+from appdgen.dataset.images import write_image
 from appdgen.synth.cubemap import CubeMaps, cube_maps, render_cube
 from appdgen.synth.raster import Canvas
 from appdgen.synth.street import CAR, MOUNTS, Mount, Scene, random_street

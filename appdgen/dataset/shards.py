@@ -10,8 +10,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from appdgen.atomic import atomic_stream, atomic_write
-from appdgen.layout import STATS_KEY, ShardStats, label_schema
+from appdgen.util.atomic import atomic_stream, atomic_write
+from appdgen.dataset.layout import STATS_KEY, ShardStats, label_schema
 
 
 class TarShard:

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from appdgen import lens
-from appdgen.calibration import Calibration
-from appdgen.crop import Crop, check_output_size, valid_region
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.crop import Crop, check_output_size, valid_region
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from appdgen.calibration import Calibration
-from appdgen.maps import Rectification, rectify
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.maps import Rectification, rectify
 
 
 #: Output rows per block of the APPD reduction: the float32 scratch rows stay in cache (~180 KB at 1392 wide).

@@ -18,12 +18,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from appdgen.appd import appd_px, px_to_pct
-from appdgen.calibration import DEFAULT_MODEL, DISTORTION, FOCAL, PRINCIPAL, Calibration
-from appdgen.crop import GRID_NODES, Crop, check_max_fov, room, search_region, valid_region
-from appdgen.distortion import distort_to_pixels
+from appdgen.geometry.appd import appd_px, px_to_pct
+from appdgen.calib.calibration import DEFAULT_MODEL, DISTORTION, FOCAL, PRINCIPAL, Calibration
+from appdgen.geometry.crop import GRID_NODES, Crop, check_max_fov, room, search_region, valid_region
+from appdgen.geometry.distortion import distort_to_pixels
 from appdgen.errors import AppdgenError
-from appdgen.maps import Rectification, rectify
+from appdgen.geometry.maps import Rectification, rectify
 
 #: The paper's ranges for the radtan model: (low, high) as fractions of the reference value.
 PAPER_RANGES: dict[str, tuple[float, float]] = {

@@ -63,8 +63,8 @@ import numpy as np
 import yaml
 
 from appdgen import lens
-from appdgen.calibration import DEFAULT_MODEL, INTRINSICS, Calibration
-from appdgen.atomic import atomic_write
+from appdgen.calib.calibration import DEFAULT_MODEL, INTRINSICS, Calibration
+from appdgen.util.atomic import atomic_write
 from appdgen.errors import AppdgenError
 
 __all__ = ["APPDGEN_FORMAT", "NUSCENES_SIZE", "list_cameras", "load", "save"]

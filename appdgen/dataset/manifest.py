@@ -11,10 +11,10 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
-from appdgen.atomic import write_file
+from appdgen.util.atomic import write_file
 from appdgen.errors import AppdgenError
-from appdgen.formats import load
-from appdgen.sources import KITTI_DAY, KITTI_DRIVE, image_size
+from appdgen.calib.formats import load
+from appdgen.dataset.sources import KITTI_DAY, KITTI_DRIVE, image_size
 
 CALIBRATION = "calib_cam_to_cam.txt"
 _FOLDER = re.compile(f"({KITTI_DRIVE})_(extract|sync)")  # a drive's unrectified (_extract) or rectified folder

@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from appdgen.analysis import ReprojectionStudy, spearman
-from appdgen.atomic import write_file
-from appdgen.calibration import FOCAL, PRINCIPAL
+from appdgen.analysis.studies import ReprojectionStudy, spearman
+from appdgen.util.atomic import write_file
+from appdgen.calib.calibration import FOCAL, PRINCIPAL
 from appdgen.errors import AppdgenError
 
 _SCENARIO_TITLES = {

@@ -21,10 +21,10 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from appdgen import lens
-from appdgen.calibration import DEFAULT_MODEL, INTRINSICS
+from appdgen.calib.calibration import DEFAULT_MODEL, INTRINSICS
 from appdgen.errors import AppdgenError
-from appdgen.images import decode_image
-from appdgen.layout import (BUILD_JSON, FORMATS, FRAGMENT_GLOB, HASH_COLUMN, INDEX, PARTS_DIR, PLAN, SHARD_FILE,
+from appdgen.dataset.images import decode_image
+from appdgen.dataset.layout import (BUILD_JSON, FORMATS, FRAGMENT_GLOB, HASH_COLUMN, INDEX, PARTS_DIR, PLAN, SHARD_FILE,
                             SHARD_GLOB, label_schema, member_record, record_json, sample_key, shard_name)
 
 BLOCK = tarfile.BLOCKSIZE  # 512: tar headers and data are padded to blocks

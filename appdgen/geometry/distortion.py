@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from appdgen import lens
-from appdgen.calibration import Calibration
+from appdgen.calib.calibration import Calibration
 from appdgen.errors import AppdgenError
 from appdgen.lens.numerics import newton_plane, plane_failures
 

@@ -3,7 +3,7 @@
 Shard k holds samples [k·S, (k+1)·S). A worker builds a whole shard's tar (written atomically); the parent then
 writes its label rows and stats as a Parquet fragment under `.parts/` (the fragment marks the shard done). Resume skips done shards;
 the index and build.json are written once every shard is done. Bytes depend on the inputs, options and seed
-only, never on --jobs or on scheduling. File names come from appdgen.layout.
+only, never on --jobs or on scheduling. File names come from appdgen.dataset.layout.
 """
 from __future__ import annotations
 
@@ -25,21 +25,21 @@ import numpy as np
 import pyarrow as pa
 
 from appdgen import __version__
-from appdgen.appd import px_to_pct
-from appdgen.atomic import atomic_write, temporary_target
-from appdgen.calibration import Calibration
-from appdgen.crop import check_max_fov, check_output_size, valid_region
-from appdgen.distribute import check_parallel, run_unordered
+from appdgen.geometry.appd import px_to_pct
+from appdgen.util.atomic import atomic_write, temporary_target
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.crop import check_max_fov, check_output_size, valid_region
+from appdgen.util.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
-from appdgen.images import encode_image, read_image
-from appdgen.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES,
+from appdgen.dataset.images import encode_image, read_image
+from appdgen.dataset.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES,
                             ShardStats, fragment_name, record_json, sample_key, shard_name)
-from appdgen.maps import Rectification
-from appdgen.progress import Progress
-from appdgen.render import DEFAULT_INTERP, remap_image
-from appdgen.sampling import DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, default_ranges
-from appdgen.shards import TarShard, read_stats, write_fragment, write_index
-from appdgen.sources import RawImage, check_complete
+from appdgen.geometry.maps import Rectification
+from appdgen.util.progress import Progress
+from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
+from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, default_ranges
+from appdgen.dataset.shards import TarShard, read_stats, write_fragment, write_index
+from appdgen.dataset.sources import RawImage, check_complete
 
 MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
 MIN_SHARD_SIZE = 8  # … and about the least of small ones

@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from appdgen.atomic import write_file
+from appdgen.util.atomic import write_file
 from appdgen.errors import AppdgenError
 
 

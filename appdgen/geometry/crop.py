@@ -29,8 +29,8 @@ from typing import Callable
 import numpy as np
 
 from appdgen import lens
-from appdgen.calibration import Calibration
-from appdgen.distortion import (
+from appdgen.calib.calibration import Calibration
+from appdgen.geometry.distortion import (
     distort_to_pixels,
     distortion_jacobian,
     pixel_rays,

@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 
 from appdgen.errors import AppdgenError
-from appdgen.maps import Rectification
+from appdgen.geometry.maps import Rectification
 
 #: The default interpolation of every remap (build, rectify, predict).
 DEFAULT_INTERP = "lanczos4"

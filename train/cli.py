@@ -19,7 +19,7 @@ def cli() -> None:
 
 
 @cli.command()
-@click.option("--shards", required=True, help="Folder written by `appdgen build` (build.json, shard-*.tar).")
+@click.option("--shards", required=True, help="Folder written by `appdgen build` (its shards, label table and summary).")
 @click.option("--run", "--run-dir", "run", required=True,
               help="Run folder: last.pt, best.pt, log.csv, config.json (--run-dir under torchrun, which claims --run).")
 @click.option("--split", default="train", show_default=True, help="Split to train on.")

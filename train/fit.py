@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import json
 import math
 import sys
@@ -67,6 +68,16 @@ class DataPlan:
     val: Selection | None
     n_train: int | None
     n_val: int | None
+
+
+def only_split(ss: ShardSet, opts: FitOptions) -> FitOptions:
+    """opts, on the build's only split when it has none named --split (a build without --split-by has one: 'all')."""
+    names = ss.split_names()
+    if ss.split_count(opts.split) or len(names) != 1:
+        return opts
+    print(f"fit: {ss.root} has no split {opts.split!r}; training on its only split {names[0]!r} "
+          f"({ss.split_count(names[0])} samples)", file=sys.stderr)
+    return dataclasses.replace(opts, split=names[0])
 
 
 def plan_data(ss: ShardSet, labels: dict | None, opts: FitOptions) -> DataPlan:
@@ -267,6 +278,7 @@ def fit(opts: FitOptions) -> dict | None:
     runtime.init_distributed(device)
     rank, world = runtime.rank(), runtime.world_size()
     ss = open_shards(opts.shards)
+    opts = only_split(ss, opts)
     labels = read_labels(ss.root)
     plan = plan_data(ss, labels, opts)
     steps = total_steps(opts, plan.n_train, world)

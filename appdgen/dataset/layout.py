@@ -14,8 +14,10 @@ import json
 import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
-import pyarrow as pa
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 INDEX = "labels.parquet"
 BUILD_JSON = "build.json"
@@ -73,6 +75,8 @@ def label_schema(params: Sequence[str]) -> pa.Schema:
     Units: parameters in raw pixels (fx…cy) or unitless (coefficients); new_* in output pixels; appd_px in raw
     pixels, appd_pct in % of the raw diagonal.
     """
+    import pyarrow as pa  # here, not at the top: the image codecs and synth import this module for FORMATS alone
+
     return pa.schema([
         ("key", pa.string()), ("shard", pa.string()), ("raw_path", pa.string()), ("split", pa.string()),
         ("camera", pa.string()), ("model", pa.string()), ("sample_index", pa.int64()), ("is_reference", pa.bool_()),

@@ -39,9 +39,10 @@ test-core: $(STAMP)
 	$(PY) -m pytest -q
 
 test-fast: $(TRAIN_STAMP)
-	$(PY) -m pytest -q -m "not slow and not heavy"
+	$(PY) -m pytest -q -m "not slow"
 
-# Minutes-long checks left out of make test: the 20,000-draw label uniformity per lens model (~5 min on 2 cores).
+# Minutes-long checks left out of make test (tests/conftest.py runs `heavy` tests only when asked for): the
+# 20,000-draw label uniformity per lens model (~5 min on 2 cores).
 test-heavy: $(TRAIN_STAMP)
 	$(PY) -m pytest -q -m heavy
 

@@ -27,6 +27,7 @@ import numpy as np
 from appdgen.dataset.build import BuildConfig, build
 from appdgen.calib.calibration import Calibration
 from appdgen.dataset.images import encode_image
+from appdgen.dataset.layout import FORMATS
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
 from appdgen.dataset.sources import list_images
@@ -54,7 +55,7 @@ def floor_rate(raw_dir: Path, samples: int, size: tuple[int, int]) -> tuple[floa
         if index % (samples // len(images)) == 0:
             raw = cv2.imread(str(images[index * len(images) // samples]))
         encode_image(cv2.remap(raw, rect.map_x, rect.map_y, cv2.INTER_LANCZOS4,
-                               borderMode=cv2.BORDER_REFLECT_101), ".png")
+                               borderMode=cv2.BORDER_REFLECT_101), FORMATS["png"])
     return samples / (time.perf_counter() - start), samples / (time.process_time() - cpu)
 
 

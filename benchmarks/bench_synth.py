@@ -23,13 +23,13 @@ from appdgen.calib.calibration import Calibration
 from appdgen.calib.defaults import DEFAULT_CALIB_PATH
 from appdgen.calib.formats import load
 from appdgen.util.distribute import run_unordered
-from appdgen.synth import CAR, _chunks, _write_frames
+from appdgen.synth import CAR, frame_chunks, write_frames
 
 
 def _timed_chunk(indices: range, **kw) -> tuple[int, float]:
     """synthesize's task, also returning the CPU seconds it took in its process."""
     start = time.process_time()
-    return _write_frames(indices, **kw), time.process_time() - start
+    return write_frames(indices, **kw), time.process_time() - start
 
 
 def timed(calib: Calibration, frames: int, scale: float, jobs: int, out: Path) -> tuple[float, float]:
@@ -38,7 +38,7 @@ def timed(calib: Calibration, frames: int, scale: float, jobs: int, out: Path) -
     out.mkdir(parents=True)
     work = functools.partial(_timed_chunk, calib=calib, out=out, seed=5, scale=scale, mount=CAR)
     wall = time.perf_counter()
-    cpu = sum(c for _, c in run_unordered(work, _chunks(frames, jobs), jobs))
+    cpu = sum(c for _, c in run_unordered(work, frame_chunks(frames, jobs), jobs))
     return time.perf_counter() - wall, cpu
 
 

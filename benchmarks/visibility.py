@@ -12,16 +12,15 @@ Run: python benchmarks/visibility.py demo/shards [--samples 150]
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 
 from appdgen.geometry.appd import appd_px
-from appdgen.calib.calibration import PARAMS, Calibration
+from appdgen.calib.calibration import Calibration
 from appdgen.geometry.distortion import undistort_pixels
 from appdgen.geometry.maps import Rectification, rectify
+from appdgen.dataset.reader import open_build
 from appdgen.sampling.sampler import parse_ranges
 
 STRIDE = 4  # output pixels between evaluated grid points: the split is smooth, a coarse grid suffices
@@ -50,31 +49,25 @@ def split(ref: Rectification, calib: Calibration) -> tuple[float, float]:
     return appd_px(ref, rect), non_affine_px(*warp_px(ref, rect))
 
 
-def reference(build: dict) -> Calibration:
-    """Θ* as build.json records it (size and K in raw pixels)."""
-    c = build["calibration"]
-    return Calibration(c["width"], c["height"], *(c[p] for p in PARAMS))
-
-
 def main() -> None:
     """Print the split for a sample of the build's labels and for each parameter at its range edges."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("shards", type=Path)
     ap.add_argument("--samples", type=int, default=150)
     args = ap.parse_args()
-    build = json.loads((args.shards / "build.json").read_text())
-    ref_calib = reference(build)
-    ranges = parse_ranges(",".join(f"{k}={v}" for k, v in build["ranges"].items()))
-    table = pq.read_table(args.shards / "labels.parquet").to_pandas()
+    build = open_build(args.shards)
+    ref_calib = build.reference
+    ranges = parse_ranges(",".join(f"{k}={v}" for k, v in build.options["ranges"].items()))
+    table = build.labels().to_pandas()
     size = (int(table.width.iloc[0]), int(table.height.iloc[0]))
     ref = rectify(ref_calib, size)
     rows = table.sample(min(args.samples, len(table)), random_state=0)
-    pairs = np.array([split(ref, ref_calib.replace(**{p: r[p] for p in PARAMS})) for _, r in rows.iterrows()])
+    pairs = np.array([split(ref, ref_calib.replace(**{p: r[p] for p in ref_calib.param_names})) for _, r in rows.iterrows()])
     appd, rest = pairs[:, 0], pairs[:, 1]
     print(f"{len(rows)} samples of {args.shards}: mean APPD {appd.mean():.2f} px, mean non-affine part "
           f"{rest.mean():.2f} px ({rest.mean() / appd.mean():.0%}); correlation with APPD {np.corrcoef(appd, rest)[0, 1]:.2f}")
     print("one parameter at a time, at the build's range edges:")
-    for name in PARAMS:
+    for name in ref_calib.param_names:
         for edge in ranges[name].offsets(getattr(ref_calib, name)):
             if edge == 0:
                 continue

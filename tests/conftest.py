@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -20,6 +21,31 @@ KITTI_2011_09_26 = {
     "03": Calibration(1392, 512, 903.7596, 901.9653, 695.7519, 224.2509, -0.3639558, 0.1788651, 0.0006029694, -0.0003922424, -0.0538246),
 }
 
+
+# `heavy` tests run only when asked for: --heavy, or a -m expression naming heavy other than as 'not heavy'. An
+# addopts "-m 'not heavy'" was replaced by any -m typed by hand (-m "not slow" then ran the minutes-long tests).
+HEAVY = "heavy"
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    """--heavy: also run the minutes-long `heavy` tests."""
+    parser.addoption("--heavy", action="store_true", help="also run the minutes-long tests marked heavy")
+
+
+def heavy_requested(config: pytest.Config) -> bool:
+    """Whether this run asked for the heavy tests (--heavy, or -m naming heavy without 'not')."""
+    expression = config.getoption("markexpr") or ""
+    return config.getoption("--heavy") or bool(re.search(rf"(?<!not )\b{HEAVY}\b", expression))
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Deselect the heavy tests unless they were asked for."""
+    if heavy_requested(config):
+        return
+    heavy = [item for item in items if item.get_closest_marker(HEAVY)]
+    if heavy:
+        config.hook.pytest_deselected(items=heavy)
+        items[:] = [item for item in items if not item.get_closest_marker(HEAVY)]
 
 
 def shared_data() -> Path | None:

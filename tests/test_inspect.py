@@ -19,7 +19,8 @@ from hypothesis import strategies as st
 
 from appdgen.dataset.build import BuildConfig, build
 from appdgen.cli import main
-from appdgen.dataset.inspection import histogram, sheet_layout, spread, verify
+from appdgen.dataset.inspect import histogram, sheet_layout, spread
+from appdgen.dataset.verify import verify
 from appdgen.calib.calibration import PARAMS
 from appdgen.dataset.layout import label_schema
 from appdgen.dataset.sources import RawImage

@@ -101,6 +101,24 @@ def test_fit_refuses_shards_too_small_for_the_network(tmp_path, capsys):
     assert "128x64" in capsys.readouterr().err
 
 
+def test_fit_trains_on_the_only_split_of_a_build_without_a_train_split(tmp_path, capsys):
+    # `appdgen build` without --split-by puts every sample in split 'all': fit takes it, holding out validation.
+    root = write_shards(tmp_path / "all", n=32, per_shard=8, splits=(("all", 1),))
+    run = tmp_path / "run"
+    main(["fit", "--shards", str(root), "--run", str(run), "--steps", "2", "--batch", "4", "--workers", "0",
+          "--stats-samples", "8", "--quiet"])
+    out, err = capsys.readouterr()
+    assert json.loads(out.splitlines()[-1])["step"] == 2
+    assert f"fit: {root} has no split 'train'; training on its only split 'all' (32 samples)" in err
+    data = json.loads((run / "config.json").read_text())["data"]
+    assert data["train"].startswith("split=all, train side of a 10% holdout") and data["n_val"] > 0
+    assert data["n_train"] + data["n_val"] == 32
+    with pytest.raises(SystemExit):  # a split asked for by name that the build lacks is still an error
+        main(["fit", "--shards", str(write_shards(tmp_path / "two", n=16, per_shard=8)), "--run",
+              str(tmp_path / "r2"), "--split", "val", "--steps", "1", "--quiet"])
+    assert "no samples of split 'val'" in capsys.readouterr().err
+
+
 # --- data -------------------------------------------------------------------------------------------
 
 

@@ -1,11 +1,11 @@
 """Checkpoints: plain tensors, dicts, lists, str and numbers only, so weights_only=True loads them."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
 
+from appdgen.util.atomic import atomic_stream
 from train.errors import TrainError
 from train.model import AppdNet, ModelConfig
 
@@ -32,12 +32,8 @@ def save(path: Path, payload: dict) -> None:
     """Write atomically: a crash mid-save leaves the previous checkpoint intact."""
     check_plain(payload)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        torch.save({"format": FORMAT, **payload}, fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    with atomic_stream(path) as stream:
+        torch.save({"format": FORMAT, **payload}, stream)
 
 
 def load(path: str | Path) -> dict:

@@ -19,10 +19,11 @@ def cli() -> None:
 
 
 @cli.command()
-@click.option("--shards", required=True, help="Folder written by `appdgen build` (build.json, shard-*.tar).")
+@click.option("--shards", required=True, help="Folder written by `appdgen build` (its shards, label table and summary).")
 @click.option("--run", "--run-dir", "run", required=True,
               help="Run folder: last.pt, best.pt, log.csv, config.json (--run-dir under torchrun, which claims --run).")
-@click.option("--split", default="train", show_default=True, help="Split to train on.")
+@click.option("--split", default="train", show_default=True,
+              help="Split to train on (a build without it but with one split only: that one, e.g. 'all').")
 @click.option("--val-split", default="auto", show_default=True,
               help="Validation split; 'auto' = 'val' if present else a raw-image holdout; 'holdout'; 'none'.")
 @click.option("--val-fraction", default=0.1, show_default=True,

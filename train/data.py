@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import posixpath
 import random
@@ -11,27 +10,21 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 import webdataset as wds
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
+from appdgen.dataset import images
+from appdgen.dataset.layout import (BUILD_JSON, FORMATS, LABEL_COLUMN, RECORD_EXT, RECORD_FIELD, SAMPLE_FIELDS,
+                                    SHARD_GLOB)
+from appdgen.dataset.reader import ShardEntry as Shard
+from appdgen.dataset.reader import index_columns, open_build
 from appdgen.dataset.sources import KITTI_DRIVE
 from train.errors import TrainError
 
-IMAGE_EXTS = ("png", "jpg", "jpeg", "npy")
 #: Slots (rank × worker) may get whole shards only if their sample counts differ by at most this.
 SHARD_BALANCE = 0.10
-
-
-@dataclass(frozen=True)
-class Shard:
-    """One tar shard: its path and how many samples of each split it holds."""
-
-    path: str
-    samples: int
-    splits: Mapping[str, int]
 
 
 @dataclass(frozen=True)
@@ -48,6 +41,10 @@ class ShardSet:
         """Samples of one split over all shards."""
         return sum(s.splits.get(split, 0) for s in self.shards)
 
+    def split_names(self) -> list[str]:
+        """The splits the shards hold, sorted (none known for shards found by name)."""
+        return sorted({name for s in self.shards for name, n in s.splits.items() if n})
+
     def for_split(self, split: str) -> tuple[Shard, ...]:
         """Only the shards that hold the split (saves reading the others)."""
         return tuple(s for s in self.shards if s.splits.get(split, 0) > 0)
@@ -63,38 +60,30 @@ class ShardSet:
 
 
 def open_shards(root: str | Path) -> ShardSet:
-    """Read OUT/build.json; without one, fall back to OUT/shard-*.tar with unknown split counts."""
+    """The shards of a build folder, read through appdgen's build reader; without build.json, the shard files found
+    by name with unknown split counts."""
     root = Path(root)
     if not root.is_dir():
         raise TrainError(f"{root}: no such shard folder (expected the output of `appdgen build`)")
-    build_path = root / "build.json"
-    if not build_path.is_file():
+    if not (root / BUILD_JSON).is_file():
         return _glob_shards(root)
-    try:
-        build = json.loads(build_path.read_text())
-    except (OSError, ValueError) as exc:
-        raise TrainError(f"{build_path}: unreadable build.json ({exc})") from None
-    shards = tuple(
-        Shard(str(root / s["file"]), int(s.get("samples", 0)), dict(s["splits"]) if "splits" in s else _AllSplits())
-        for s in build.get("shards", [])
-    )
+    build = open_build(root)
+    shards = build.entries
     if not shards:
-        raise TrainError(f"{build_path}: lists no shards")
-    missing = [s.path for s in shards if not Path(s.path).is_file()]
+        raise TrainError(f"{root / BUILD_JSON}: lists no shards")
+    missing = [s.path for s in shards if not s.path.is_file()]
     if missing:
-        raise TrainError(f"{build_path}: {len(missing)} listed shard(s) missing, e.g. {missing[0]}")
-    size = tuple(build["size"]) if build.get("size") else None
-    appd_max = float(build["appd_max"]) if build.get("appd_max") is not None else None
-    return ShardSet(root, shards, size, appd_max, build)
+        raise TrainError(f"{root / BUILD_JSON}: {len(missing)} listed shard(s) missing, e.g. {missing[0]}")
+    return ShardSet(root, shards, build.size, build.appd_max, build.info)
 
 
 def _glob_shards(root: Path) -> ShardSet:
     """Shards found by name when build.json is missing; every shard is read for every split."""
-    paths = sorted(root.glob("shard-*.tar"))
+    paths = sorted(root.glob(SHARD_GLOB))
     if not paths:
-        raise TrainError(f"{root}: neither build.json nor shard-*.tar found")
+        raise TrainError(f"{root}: neither {BUILD_JSON} nor {SHARD_GLOB} found")
     everything = _AllSplits()
-    return ShardSet(root, tuple(Shard(str(p), 0, everything) for p in paths), None, None)
+    return ShardSet(root, tuple(Shard(p, 0, everything) for p in paths), None, None)
 
 
 class _AllSplits(dict):
@@ -105,14 +94,16 @@ class _AllSplits(dict):
         return 1
 
 
-def read_labels(root: Path) -> dict[str, list] | None:
-    """Columns key, split, raw_path, appd_pct of OUT/labels.parquet, or None when absent."""
-    path = root / "labels.parquet"
-    if not path.is_file():
-        return None
-    import pyarrow.parquet as pq
+#: The label columns the trainer reads.
+LABEL_COLUMNS = ("key", "split", "raw_path", LABEL_COLUMN)
 
-    cols = pq.read_table(path, columns=["key", "split", "raw_path", "appd_pct"]).to_pydict()
+
+def read_labels(root: Path) -> dict[str, list] | None:
+    """Columns key, split, raw_path, appd_pct of the build's label table, or None when it has none."""
+    table = index_columns(Path(root), LABEL_COLUMNS)
+    if table is None:
+        return None
+    cols = table.to_pydict()
     cols["key"] = [str(k) for k in cols["key"]]  # json keys are strings; match them whatever parquet typed
     return cols
 
@@ -182,23 +173,20 @@ def count_selected(labels: Mapping[str, list] | None, sel: Selection) -> int | N
 
 
 def decode_image(data: bytes, ext: str, where: str) -> np.ndarray:
-    """H×W×3 uint8 image from PNG/JPEG bytes (OpenCV BGR order) or .npy bytes (taken as stored)."""
-    if ext == "npy":
-        arr = np.load(io.BytesIO(data), allow_pickle=False)
-    else:
-        arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    if arr is None or arr.dtype != np.uint8 or arr.ndim != 3 or arr.shape[2] != 3:
-        got = "undecodable" if arr is None else f"{arr.dtype} {arr.shape}"
-        raise TrainError(f"{where}: expected a 3-channel 8-bit image, got {got}")
+    """H×W×3 uint8 image from a sample's encoded bytes (PNG/JPEG in OpenCV BGR order, .npy taken as stored)."""
+    arr = images.decode_image(data, f".{ext}", where)
+    if arr.dtype != np.uint8 or arr.ndim != 3 or arr.shape[2] != 3:
+        raise TrainError(f"{where}: expected a 3-channel 8-bit image, got {arr.dtype} {arr.shape}")
     return arr
 
 
 def image_entry(sample: Mapping) -> tuple[str, bytes]:
     """(extension, bytes) of a webdataset sample's image member."""
-    for ext in IMAGE_EXTS:
+    for ext in SAMPLE_FIELDS:
         if ext in sample:
             return ext, sample[ext]
-    raise TrainError(f"{sample.get('__url__')}: sample {sample.get('__key__')} has no .png/.jpg/.npy image")
+    raise TrainError(f"{sample.get('__url__')}: sample {sample.get('__key__')} has no "
+                     f"{'/'.join(FORMATS.values())} image")
 
 
 def slot_loads(counts: list[int], slots: int) -> list[int]:
@@ -299,12 +287,12 @@ class ShardStream(IterableDataset):
 
     def _accepted(self, shards: list[Shard]) -> Iterator[tuple[dict, str, bytes, str]]:
         """(json, image ext, image bytes, shard path) of accepted samples, image not yet decoded."""
-        urls = [{"url": s.path} for s in shards]
+        urls = [{"url": str(s.path)} for s in shards]
         for sample in wds.tarfile_to_samples()(iter(urls)):
             url = sample.get("__url__", "?")
-            if "json" not in sample:
-                raise TrainError(f"{url}: sample {sample.get('__key__')} has no .json metadata")
-            meta = json.loads(sample["json"])
+            if RECORD_FIELD not in sample:
+                raise TrainError(f"{url}: sample {sample.get('__key__')} has no {RECORD_EXT} metadata")
+            meta = json.loads(sample[RECORD_FIELD])
             if self.spec.selection.accepts(meta):
                 ext, data = image_entry(sample)
                 yield meta, ext, data, url
@@ -316,9 +304,9 @@ class ShardStream(IterableDataset):
         if self.spec.size is not None and (img.shape[1], img.shape[0]) != tuple(self.spec.size):
             w, h = self.spec.size
             raise TrainError(f"{where}: image is {img.shape[1]}x{img.shape[0]}, expected {w}x{h}")
-        label = meta.get("appd_pct")
+        label = meta.get(LABEL_COLUMN)
         if label is None:
-            raise TrainError(f"{where}: json has no appd_pct label")
+            raise TrainError(f"{where}: json has no {LABEL_COLUMN} label")
         return {
             "image": torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1))),
             "label": torch.tensor(float(label), dtype=torch.float32),

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import json
 import math
 import sys
@@ -14,6 +15,8 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
+from appdgen.dataset.layout import BUILD_JSON, INDEX, LABEL_COLUMN
+from appdgen.util.progress import Progress
 from train import checkpoint, runtime
 from train.data import (
     HOLDOUT_UNITS, Selection, ShardSet, ShardStream, StreamSpec, channel_stats, count_selected, held_out,
@@ -67,10 +70,20 @@ class DataPlan:
     n_val: int | None
 
 
+def only_split(ss: ShardSet, opts: FitOptions) -> FitOptions:
+    """opts, on the build's only split when it has none named --split (a build without --split-by has one: 'all')."""
+    names = ss.split_names()
+    if ss.split_count(opts.split) or len(names) != 1:
+        return opts
+    print(f"fit: {ss.root} has no split {opts.split!r}; training on its only split {names[0]!r} "
+          f"({ss.split_count(names[0])} samples)", file=sys.stderr)
+    return dataclasses.replace(opts, split=names[0])
+
+
 def plan_data(ss: ShardSet, labels: dict | None, opts: FitOptions) -> DataPlan:
     """Pick the validation set: a named split, else a hash holdout of the training split's recordings."""
     if ss.split_count(opts.split) == 0:
-        raise TrainError(f"{ss.root}: no samples of split {opts.split!r} (build.json lists none)")
+        raise TrainError(f"{ss.root}: no samples of split {opts.split!r} ({BUILD_JSON} lists none)")
     val_split = opts.val_split
     if val_split == "auto":
         val_split = "val" if ss.split_count("val") > 0 else "holdout"
@@ -85,7 +98,7 @@ def plan_data(ss: ShardSet, labels: dict | None, opts: FitOptions) -> DataPlan:
             raise TrainError(f"--val-fraction must be in (0, 1), got {opts.val_fraction}")
         raw = dict(zip(labels["key"], labels["raw_path"])) if labels else None
         if raw is None:
-            print("fit: no labels.parquet; holding out by each sample's json raw_path, else its key", file=sys.stderr)
+            print(f"fit: no {INDEX}; holding out by each sample's json raw_path, else its key", file=sys.stderr)
         by, held = holdout_unit(labels, opts)
         train = Selection(opts.split, opts.val_fraction, "train", raw, by, held)
         val = Selection(opts.split, opts.val_fraction, "val", raw, by, held)
@@ -125,7 +138,7 @@ def total_steps(opts: FitOptions, n_train: int | None, world: int) -> int:
     if opts.steps is not None:
         return opts.steps
     if not n_train:
-        raise TrainError("--epochs needs the sample count (labels.parquet or build.json); use --steps")
+        raise TrainError(f"--epochs needs the sample count ({INDEX} or {BUILD_JSON}); use --steps")
     return max(1, math.ceil(opts.epochs * n_train / (opts.batch * world)))
 
 
@@ -155,7 +168,7 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
         with torch.no_grad():
             model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])
     config = {
-        "model": model.cfg.to_dict(), "label": "appd_pct", "label_mean": label_mean, "appd_max": ss.appd_max,
+        "model": model.cfg.to_dict(), "label": LABEL_COLUMN, "label_mean": label_mean, "appd_max": ss.appd_max,
         "rectify": ss.rectify_rule(),  # predict --calib rectifies raw images by the same rule
         "data": {"shards": str(ss.root), "train": plan.train.describe(),
                  "val": plan.val.describe() if plan.val else None, "n_train": plan.n_train, "n_val": plan.n_val},
@@ -166,7 +179,7 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
 
 def _train_label_mean(labels: dict, sel: Selection) -> float:
     """Mean appd_pct over a selection's rows of labels.parquet (exact, no image decoding)."""
-    vals = [a for k, s, r, a in zip(labels["key"], labels["split"], labels["raw_path"], labels["appd_pct"])
+    vals = [a for k, s, r, a in zip(labels["key"], labels["split"], labels["raw_path"], labels[LABEL_COLUMN])
             if sel.accepts({"key": k, "split": s, "raw_path": r})]
     return sum(vals) / len(vals)
 
@@ -265,6 +278,7 @@ def fit(opts: FitOptions) -> dict | None:
     runtime.init_distributed(device)
     rank, world = runtime.rank(), runtime.world_size()
     ss = open_shards(opts.shards)
+    opts = only_split(ss, opts)
     labels = read_labels(ss.root)
     plan = plan_data(ss, labels, opts)
     steps = total_steps(opts, plan.n_train, world)
@@ -322,7 +336,7 @@ class Trainer:
             print(f"fit: checkpoint is already at step {step} ≥ {steps}; nothing to do", file=sys.stderr)
             return self.summary(step, None, {})
         self.announce(step, steps)
-        progress = runtime.Progress(steps, "fit", enabled=self.rank == 0 and not self.opts.quiet)
+        progress = Progress(steps, "steps", enabled=self.rank == 0 and not self.opts.quiet, every=30.0, done=step)
         batches, window = self.loader(step), Window(self.device)
         last, deadline = {"train_loss": None}, Deadline(self.opts.max_minutes)
         while step < steps:
@@ -340,7 +354,7 @@ class Trainer:
         progress.close()
         return self.summary(step, last["train_loss"], {k: v for k, v in last.items() if k.startswith("val")})
 
-    def bookkeeping(self, step: int, steps: int, window: "Window", progress: runtime.Progress) -> dict | None:
+    def bookkeeping(self, step: int, steps: int, window: "Window", progress: Progress) -> dict | None:
         """Log/validate/checkpoint when due; returns the logged row, None when nothing was logged."""
         o, final = self.opts, step == steps
         val_due = final or step % (o.val_every or o.ckpt_every) == 0
@@ -350,7 +364,7 @@ class Trainer:
             row = {"train_loss": window.mean_loss(), "images_per_s": window.rate(),
                    **(self.validate(step) if val_due else {})}
             self.log.row(step=step, lr=self.opt.param_groups[0]["lr"], **row)
-            progress.update(step, f"loss {row['train_loss']:.4f} {row['images_per_s']:.1f} img/s", force=final)
+            progress.update(step, f"fit: loss {row['train_loss']:.4f} {row['images_per_s']:.1f} img/s", force=final)
             window.reset()
         if final or step % o.ckpt_every == 0:
             with window.paused():  # keep checkpoint time out of images_per_s

@@ -12,11 +12,14 @@ import numpy as np
 import torch
 
 from train import checkpoint, runtime
-from train.data import IMAGE_EXTS
+from appdgen.dataset.layout import FORMATS
+from appdgen.dataset.sources import IMAGE_SUFFIXES
 from train.errors import TrainError
 from train.model import AppdNet
 
 Preprocess = Callable[[np.ndarray, str], np.ndarray]
+#: What a folder given to predict is listed for: raw camera images, and images as a build encodes them (.npy too).
+IMAGES = frozenset((*IMAGE_SUFFIXES, *FORMATS.values()))
 
 
 @dataclass(frozen=True)
@@ -34,7 +37,7 @@ def list_images(inputs: list[str]) -> list[Path]:
     paths: list[Path] = []
     for item in map(Path, inputs):
         if item.is_dir():
-            paths += sorted(p for p in item.iterdir() if p.suffix.lower().lstrip(".") in IMAGE_EXTS)
+            paths += sorted(p for p in item.iterdir() if p.suffix.lower() in IMAGES)
         elif item.is_file():
             paths.append(item)
         else:
@@ -46,7 +49,7 @@ def list_images(inputs: list[str]) -> list[Path]:
 
 def read_image(path: Path) -> np.ndarray:
     """H×W×3 uint8 in OpenCV's BGR order (.npy taken as stored, like the shards)."""
-    if path.suffix.lower() == ".npy":
+    if path.suffix.lower() == FORMATS["npy"]:
         img = np.load(path, allow_pickle=False)
     else:
         img = cv2.imread(str(path), cv2.IMREAD_COLOR)

@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import sys
-import time
 
 import torch
 
@@ -116,41 +114,3 @@ def finish_distributed() -> None:
 
     if dist.is_available() and dist.is_initialized():
         dist.destroy_process_group()
-
-
-def fmt_seconds(s: float) -> str:
-    """Duration as 1h02m, 3m05s or 12s."""
-    s = int(max(0, s))
-    if s >= 3600:
-        return f"{s // 3600}h{s % 3600 // 60:02d}m"
-    return f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s"
-
-
-class Progress:
-    """One stderr status line, redrawn in place on a terminal, printed every `every` s otherwise."""
-
-    def __init__(self, total: int, label: str, enabled: bool = True, every: float = 30.0) -> None:
-        self.total, self.label, self.enabled = total, label, enabled
-        self.tty = sys.stderr.isatty()
-        self.every = 0.2 if self.tty else every
-        self.start = self.last = time.perf_counter()
-        self.first_step: int | None = None
-
-    def update(self, done: int, text: str = "", force: bool = False) -> None:
-        """Show `done` of total, rate-limited unless forced; the ETA uses the rate since the first update."""
-        now = time.perf_counter()
-        if self.first_step is None:
-            self.first_step, self.start = done, now
-        if not self.enabled or (now - self.last < self.every and done < self.total and not force):
-            return
-        self.last = now
-        rate = (done - self.first_step) / max(now - self.start, 1e-9)
-        eta = fmt_seconds((self.total - done) / rate) if rate > 0 else "?"
-        line = f"[{self.label}] {done}/{self.total} {text} eta {eta}"
-        sys.stderr.write(f"\r{line}\x1b[K" if self.tty else line + "\n")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        """End the in-place line."""
-        if self.enabled and self.tty:
-            sys.stderr.write("\n")

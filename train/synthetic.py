@@ -1,32 +1,25 @@
-"""Tiny stand-in shards in appdgen's output layout, with a learnable label, for tests and benchmarks."""
+"""Tiny stand-in builds with a learnable label, for tests and benchmarks, written by appdgen's build writer."""
 from __future__ import annotations
 
-import io
-import json
+from collections import Counter
 from pathlib import Path
 
 import cv2
 import numpy as np
-import webdataset as wds
+
+from appdgen.calib.calibration import Calibration
+from appdgen.dataset.images import encode_image
+from appdgen.dataset.layout import FORMATS, STAGES, ShardStats, sample_key, shard_name
+from appdgen.dataset.shards import BuildWriter
 
 INTRINSICS = {"fx": 100.0, "fy": 100.0, "cx": 64.0, "cy": 64.0, "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "k3": 0.0}
+CAMERA = "00"
 
 
 def texture(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
     """A smooth random colour texture, H×W×3 float in [0, 1] (a stand-in for a raw camera image)."""
     small = rng.random((max(2, h // 16), max(2, w // 16), 3)).astype(np.float32)
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC).clip(0, 1)
-
-
-def encode(img: np.ndarray, fmt: str) -> bytes:
-    """PNG/JPEG bytes via OpenCV, or .npy bytes of the uint8 array."""
-    if fmt == "npy":
-        buf = io.BytesIO()
-        np.save(buf, img)
-        return buf.getvalue()
-    ok, data = cv2.imencode(f".{fmt}", img)
-    assert ok
-    return data.tobytes()
 
 
 def sample_image(base: np.ndarray, gain: float) -> np.ndarray:
@@ -45,7 +38,7 @@ def write_shards(
     per_raw: int = 4,
     seed: int = 0,
 ) -> Path:
-    """Write n samples as OUT/shard-*.tar + labels.parquet + build.json; label = appd_max·(gain−0.2)/0.8.
+    """Write n samples as a build folder (shards, label table, summary); label = appd_max·(gain−0.2)/0.8 in %.
 
     Samples come in groups of per_raw sharing one raw texture (a 'raw image'); raw images cycle
     through `splits` by weight, so a split never shares raw images with another.
@@ -54,53 +47,53 @@ def write_shards(
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     w, h = size
+    reference = Calibration(w, h, *INTRINSICS.values())
+    writer = BuildWriter(out, reference.param_names)
     cycle = [name for name, weight in splits for _ in range(weight)]
-    rows: list[dict] = []
-    shards: list[dict] = []
     base = texture(rng, w, h)
-    for i in range(n):
-        if i % per_raw == 0:
-            base = texture(rng, w, h)
-        raw = i // per_raw
-        gain = float(rng.uniform(0.2, 1.0))
-        meta = {
-            "key": f"{i:09d}", "sample_index": i, "split": cycle[raw % len(cycle)],
-            "appd_pct": appd_max * (gain - 0.2) / 0.8, "is_reference": False,
-            "width": w, "height": h, "raw_path": f"raw/rec{raw % 3}/{raw:06d}.png", **INTRINSICS,
-        }
-        meta["appd_px"] = meta["appd_pct"] / 100 * float(np.hypot(w, h))
-        if i % per_shard == 0:
-            shards.append({"file": f"shard-{len(shards):06d}.tar", "samples": 0, "splits": {}})
-            writer = wds.TarWriter(str(out / shards[-1]["file"]))
-        writer.write({"__key__": meta["key"], fmt: encode(sample_image(base, gain), fmt), "json": meta})
-        entry = shards[-1]
-        entry["samples"] += 1
-        entry["splits"][meta["split"]] = entry["splits"].get(meta["split"], 0) + 1
-        rows.append({**meta, "shard": entry["file"], "camera": "00"})
-        if i % per_shard == per_shard - 1 or i == n - 1:
-            writer.close()
-    _write_labels(out, rows)
-    _write_build(out, rows, shards, size, fmt, appd_max, seed)
+    made = {}
+    for shard in range(-(-n // per_shard)):
+        rows: list[dict] = []
+        with writer.shard(shard) as tar:
+            for i in range(shard * per_shard, min(n, (shard + 1) * per_shard)):
+                if i % per_raw == 0:
+                    base = texture(rng, w, h)
+                gain = float(rng.uniform(0.2, 1.0))
+                row = _row(i, shard, cycle[i // per_raw % len(cycle)], i // per_raw, appd_max * (gain - 0.2) / 0.8,
+                           reference)
+                tar.add_sample(row, FORMATS[fmt], encode_image(sample_image(base, gain), FORMATS[fmt]))
+                rows.append(row)
+        stats = ShardStats(shard=shard, file=shard_name(shard), samples=len(rows), bytes=tar.size,
+                           splits=dict(sorted(Counter(r["split"] for r in rows).items())), references=0,
+                           evaluations=0, stage_seconds=dict.fromkeys(STAGES, 0.0), seconds=0.0)
+        made[shard] = writer.shard_done(stats, rows)
+    writer.finish(len(made), made, lambda shards: _summary(shards, reference, fmt, appd_max, per_shard, seed))
     return out
 
 
-def _write_labels(out: Path, rows: list[dict]) -> None:
-    """OUT/labels.parquet with the columns the trainer reads."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    cols = ["key", "shard", "raw_path", "split", "camera", "sample_index", "is_reference", "appd_px", "appd_pct"]
-    pq.write_table(pa.table({c: [r[c] for r in rows] for c in cols}), out / "labels.parquet")
-
-
-def _write_build(out: Path, rows: list[dict], shards: list[dict], size: tuple[int, int], fmt: str,
-                 appd_max: float, seed: int) -> None:
-    """OUT/build.json with counts per split and per shard."""
-    counts: dict[str, int] = {}
-    for r in rows:
-        counts[r["split"]] = counts.get(r["split"], 0) + 1
-    build = {
-        "appdgen_version": "synthetic", "seed": seed, "size": list(size), "format": fmt, "appd_max": appd_max,
-        "counts": {"samples": len(rows), "splits": counts}, "shards": shards,
+def _row(index: int, shard: int, split: str, raw: int, appd_pct: float, reference: Calibration) -> dict:
+    """One sample's label row (the build's label columns; K̂ is the reference's: nothing is cropped)."""
+    return {
+        "key": sample_key(index), "shard": shard_name(shard), "raw_path": f"raw/rec{raw % 3}/{raw:06d}.png",
+        "split": split, "camera": CAMERA, "model": reference.model, "sample_index": index, "is_reference": False,
+        **INTRINSICS, **{f"new_{k}": INTRINSICS[k] for k in ("fx", "fy", "cx", "cy")},
+        "width": reference.width, "height": reference.height,
+        "appd_px": appd_pct / 100 * float(np.hypot(reference.width, reference.height)), "appd_pct": appd_pct,
     }
-    (out / "build.json").write_text(json.dumps(build, indent=1))
+
+
+def _summary(shards: list[ShardStats], reference: Calibration, fmt: str, appd_max: float, per_shard: int,
+             seed: int) -> dict:
+    """The summary a build writes, with what the trainer, `inspect` and `verify` read."""
+    splits: Counter = Counter()
+    for stats in shards:
+        splits.update(stats.splits)
+    samples = sum(s.samples for s in shards)
+    return {
+        "appdgen_version": "synthetic", "calibration": {"camera": CAMERA, **reference.to_dict()}, "samples": samples,
+        "size": [reference.width, reference.height], "format": fmt, "shard_size": per_shard, "seed": seed,
+        "appd_max": appd_max,
+        "counts": {"samples": samples, "shards": len(shards), "splits": dict(sorted(splits.items())),
+                   "references": 0},
+        "shards": [s.listing() for s in shards],
+    }

@@ -18,7 +18,7 @@ from appdgen.cli.base import (
 )
 from appdgen.util.distribute import BACKENDS
 from appdgen.errors import AppdgenError
-from appdgen.dataset.layout import FORMATS
+from appdgen.dataset.layout import BUILD_JSON, FORMATS
 from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
 from appdgen.dataset.sources import SPLIT_BY
 
@@ -80,7 +80,7 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
               help="Split column from the path: first folder, KITTI day, or KITTI drive (list files may name splits).")
 @click.option("--skip-bad", is_flag=True,
               help="Skip images of the wrong size, truncated, unreadable or with alpha channels, listing each in "
-                   "build.json (else the first is an error).")
+                   f"{BUILD_JSON} (else the first is an error).")
 @click.option("--resume", is_flag=True,
               help="Finish an interrupted build in --out (same options, same calibration and image files; "
                    "any working folder).")
@@ -120,7 +120,7 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     summary = run_build(config, Path(out_dir), workers, backend, scheduler, resume, overwrite,
                         progress=not quiet, command=["appdgen", *sys.argv[1:]], skipped=skipped)
     t = summary["timings"]
-    skipped_note = f", {len(skipped)} images skipped (listed in build.json)" if skipped else ""
+    skipped_note = f", {len(skipped)} images skipped (listed in {BUILD_JSON})" if skipped else ""
     click.echo(f"built {total} samples in {config.shards} shards ({t['shards_built']} now, {t['shards_resumed']} "
                f"resumed) in {t['wall_seconds']:.1f} s: {t['samples_per_second'] or 0:.1f} samples/s, "
                f"{t['mb_written']:.1f} MB written{skipped_note} -> {out_dir}")
@@ -175,7 +175,7 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
 def inspect_command(out_dir, sheet, count):
     """Summarise a finished build: counts, splits, APPD histogram, sampler speed, size on disk."""
     from appdgen.dataset.images import write_image
-    from appdgen.dataset.inspection import contact_sheet, summary
+    from appdgen.dataset.inspect import contact_sheet, summary
 
     click.echo(summary(Path(out_dir)))
     if sheet is not None:
@@ -189,7 +189,7 @@ def inspect_command(out_dir, sheet, count):
 @fail_cleanly
 def verify_command(out_dir):
     """Re-read every shard and check it against labels.parquet and build.json (exit 1 on any mismatch)."""
-    from appdgen.dataset.inspection import verify
+    from appdgen.dataset.verify import verify
 
     report = verify(Path(out_dir))
     checked = f"{report.samples} samples in {report.shards} shards"

@@ -12,7 +12,6 @@ import functools
 import hashlib
 import json
 import platform
-import secrets
 import shutil
 import sys
 import time
@@ -32,13 +31,13 @@ from appdgen.geometry.crop import check_max_fov, check_output_size, valid_region
 from appdgen.util.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.dataset.images import encode_image, read_image
-from appdgen.dataset.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES,
-                            ShardStats, fragment_name, record_json, sample_key, shard_name)
+from appdgen.dataset.layout import (FORMATS, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES, ShardStats,
+                                    sample_key, shard_name)
 from appdgen.geometry.maps import Rectification
 from appdgen.util.progress import Progress
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
 from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, default_ranges
-from appdgen.dataset.shards import TarShard, read_stats, write_fragment, write_index
+from appdgen.dataset.shards import BuildWriter
 from appdgen.dataset.sources import RawImage, check_complete
 
 MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
@@ -105,10 +104,6 @@ class BuildConfig:
             raise AppdgenError(f"--size: {exc}") from None
         check_max_fov(self.max_fov)
         self._check_reference()
-        # Refuses bad --appd-max, --zero-fraction and --ranges, and an --appd-max the ranges cannot reach, now
-        # (a few dozen coarse APPD evaluations), before --out is touched, not in a worker; the sampler is the one
-        # an in-process build (--jobs 1) goes on to use.
-        self.sampler().check_reachable()
 
     def _check_reference(self) -> None:
         """Refuse a reference without a valid crop (e.g. a folding lens), naming its file."""
@@ -143,6 +138,11 @@ class BuildConfig:
     def plan(self) -> dict:
         """A JSON-ready description of everything that shapes the output, by content: the calibration file's
         hash and the images' resolved paths (not the names they were given by), to check a resume against."""
+        return self._plan
+
+    @functools.cached_property
+    def _plan(self) -> dict:
+        """plan(), worked out once per config: it reads the calibration file and resolves every image path."""
         return {
             "appdgen_version": __version__,
             "calibration": {"camera": self.camera, "sha256": file_hash(self.calib_path), **self.reference.to_dict()},
@@ -162,7 +162,9 @@ class BuildConfig:
     def renamed(self, record: dict) -> "BuildConfig":
         """This config with the names a plan.json recorded (same content, so the resumed rows match the rest)."""
         images = tuple(RawImage(i.path, name, split) for i, (name, split) in zip(self.images, record["images"]))
-        return dataclasses.replace(self, calib_path=record["calibration"]["path"], images=images)
+        renamed = dataclasses.replace(self, calib_path=record["calibration"]["path"], images=images)
+        renamed.__dict__["_plan"] = self._plan  # the same content, so the same plan (no second hashing)
+        return renamed
 
 
 def plan_content(record: dict) -> dict:
@@ -200,7 +202,7 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
         last = now
 
     # Streamed to disk as it grows: a 1,000-sample full-size shard would be ~1 GB in memory.
-    with TarShard(out / shard_name(shard)) as tar:
+    with BuildWriter(out, config.reference.param_names).shard(shard) as tar:
         for index in config.shard_samples(shard):
             draw = sampler.draw(config.seed, index)
             evaluations += draw.evaluations
@@ -213,9 +215,7 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
             data = encode_image(image, config.ext)
             lap("encode")
             row = _label_row(config, shard, index, raw_image, draw.is_reference, draw.rect, draw.appd_px)
-            tar.add(f"{row['key']}.json", record_json(row))
-            row[HASH_COLUMN] = hashlib.sha256(data).hexdigest()
-            tar.add(f"{row['key']}{config.ext}", data)
+            tar.add_sample(row, config.ext, data)
             rows.append(row)
             lap("write")
     lap("write")
@@ -342,9 +342,8 @@ def _remove_outputs(out: Path) -> None:
 
 def pending_shards(out: Path, config: BuildConfig) -> list[int]:
     """Shards whose fragment (written last) or tar is missing."""
-    parts = out / PARTS_DIR
-    return [k for k in range(config.shards)
-            if not ((parts / fragment_name(k)).is_file() and (out / shard_name(k)).is_file())]
+    writer = BuildWriter(out, config.reference.param_names)
+    return [k for k in range(config.shards) if not writer.is_done(k)]
 
 
 def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", scheduler: str | None = None,
@@ -353,18 +352,23 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
     """Run a build into `out` and return build.json's content (skipped: images left out, {"path", "problem"})."""
     start = time.perf_counter()
     check_parallel(jobs, backend)
+    # Refuses bad --appd-max, --zero-fraction and --ranges, and an --appd-max the ranges cannot reach, here where
+    # the build starts (a few dozen coarse APPD evaluations), before --out is touched, not in a worker; the sampler
+    # is the one an in-process build (--jobs 1) goes on to use.
+    config.sampler().check_reachable()
     config = prepare_out(out, config, resume, overwrite)
+    writer = BuildWriter(out, config.reference.param_names)
     todo = pending_shards(out, config)
-    bar = Progress(config.samples, enabled=progress)
-    bar.advance(config.samples - sum(len(config.shard_samples(k)) for k in todo), "resumed" if resume else "")
+    bar = Progress(config.samples, enabled=progress,
+                   done=config.samples - sum(len(config.shard_samples(k)) for k in todo))
+    bar.advance(0, "resumed" if resume else "")
     made: dict[int, pa.Table] = {}  # this run's fragments, kept for the index (re-reading them cost ~3 ms each)
     try:
         for stats, rows in run_unordered(build_shard, [(config, str(out), k) for k in todo], jobs, backend, scheduler):
-            # Written last, after the shard's tar: the fragment marks the shard done.
-            made[stats.shard] = write_fragment(out / PARTS_DIR / fragment_name(stats.shard), rows,
-                                               config.reference.param_names, stats)
+            made[stats.shard] = writer.shard_done(stats, rows)  # after the shard's tar: marks the shard done
             bar.advance(stats.samples, stats.file)
-        return _finish(config, out, made, start, command, skipped or [])
+        return writer.finish(config.shards, made, lambda shards: _summary(
+            config, shards, list(made), time.perf_counter() - start, command, skipped or []))
     except OSError as exc:
         raise AppdgenError(f"--out {out}: write failed ({exc.strerror or exc}); fix it and rerun with --resume") from None
     except UnreachableError as exc:
@@ -374,23 +378,6 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
                            f"out and rebuild with --overwrite)") from None
     except AppdgenError as exc:
         raise AppdgenError(f"{exc} (finished shards are kept: fix this and rerun with --resume)") from None
-
-
-def _finish(config: BuildConfig, out: Path, made: dict[int, pa.Table], start: float, command: list[str] | None,
-            skipped: list[dict]) -> dict:
-    """Write labels.parquet and build.json from the parts (this run's from memory), then drop the parts; returns
-    build.json's content."""
-    parts = out / PARTS_DIR
-    fragments = [made.get(k, parts / fragment_name(k)) for k in range(config.shards)]
-    shards = [read_stats(f) for f in fragments]
-    write_index(out / INDEX, fragments, config.reference.param_names)
-    summary = _summary(config, shards, list(made), time.perf_counter() - start, command, skipped)
-    atomic_write(out / BUILD_JSON, json.dumps(summary, indent=2).encode())
-    # One rename ends the build (a kill during a plain rmtree could leave a plan-less, unresumable .parts).
-    trash = out / f".{PARTS_DIR}.{secrets.token_hex(4)}.tmp"
-    parts.rename(trash)
-    shutil.rmtree(trash)
-    return summary
 
 
 def _summary(config: BuildConfig, shards: list[ShardStats], built: list[int], seconds: float,

@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from appdgen.dataset.layout import FORMATS
 from appdgen.util.atomic import write_file
 from appdgen.errors import AppdgenError
 
@@ -23,11 +24,11 @@ def read_image(path: Path) -> np.ndarray:
 
 def encode_image(image: np.ndarray, ext: str) -> bytes:
     """Encoded bytes for '.png' (compression level 1), '.jpg' (quality 95) or '.npy'."""
-    if ext == ".npy":
+    if ext == FORMATS["npy"]:
         buffer = io.BytesIO()
         np.save(buffer, image, allow_pickle=False)
         return buffer.getvalue()
-    params = {".png": [cv2.IMWRITE_PNG_COMPRESSION, 1], ".jpg": [cv2.IMWRITE_JPEG_QUALITY, 95]}.get(ext)
+    params = {FORMATS["png"]: [cv2.IMWRITE_PNG_COMPRESSION, 1], FORMATS["jpg"]: [cv2.IMWRITE_JPEG_QUALITY, 95]}.get(ext)
     if params is None:
         raise AppdgenError(f"unsupported image format {ext!r}; expected .png, .jpg or .npy")
     ok, data = cv2.imencode(ext, image, params)
@@ -38,7 +39,7 @@ def encode_image(image: np.ndarray, ext: str) -> bytes:
 
 def decode_image(data: bytes, ext: str, where: str) -> np.ndarray:
     """An image array from encoded '.png'/'.jpg' bytes (8-bit BGR) or '.npy' bytes; AppdgenError naming `where`."""
-    if ext == ".npy":
+    if ext == FORMATS["npy"]:
         try:
             return np.load(io.BytesIO(data), allow_pickle=False)
         except (ValueError, OSError) as exc:
@@ -52,4 +53,4 @@ def decode_image(data: bytes, ext: str, where: str) -> np.ndarray:
 def write_image(path: Path, image: np.ndarray) -> None:
     """Write an image atomically (temp file, then rename); format from the extension."""
     ext = path.suffix.lower().replace(".jpeg", ".jpg")
-    write_file(path, encode_image(image, ext if ext in (".png", ".jpg", ".npy") else ".png"))
+    write_file(path, encode_image(image, ext if ext in FORMATS.values() else FORMATS["png"]))

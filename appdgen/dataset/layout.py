@@ -1,7 +1,7 @@
 """The output layout of a build, the one owner of its names: files, shard naming, image formats, label columns.
 
-The writer (build, shards), resume, `inspect` and `verify` all take these names from here, and so does the CLI
-for its choices. A build folder holds
+The writer (shards.BuildWriter), the reader (reader.open_build), resume, `inspect`, `verify`, the trainer and the
+benchmarks all take these names from here, and so does the CLI for its choices. A build folder holds
 
     OUT/shard-000000.tar …   WebDataset shards: <key>.json then <key><ext> per sample, key = 9-digit sample index
     OUT/labels.parquet       one row per sample (label_schema)
@@ -14,8 +14,10 @@ import json
 import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
-import pyarrow as pa
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 INDEX = "labels.parquet"
 BUILD_JSON = "build.json"
@@ -28,8 +30,15 @@ SHARD_FILE = re.compile(r"shard-\d{6,}\.tar")
 OUTPUT_NAMES = (INDEX, BUILD_JSON, PARTS_DIR)
 #: --format choices → the image members' extension.
 FORMATS: dict[str, str] = {"png": ".png", "jpg": ".jpg", "npy": ".npy"}
+#: The image members' extensions as WebDataset names a sample's fields (no dot: 'png', 'jpg', 'npy').
+SAMPLE_FIELDS: tuple[str, ...] = tuple(ext.lstrip(".") for ext in FORMATS.values())
 #: The member that is the label row minus this column (its own bytes' hash).
 HASH_COLUMN = "sha256"
+#: The label, in % of the raw image diagonal: what the trainer learns.
+LABEL_COLUMN = "appd_pct"
+#: The extension of a sample's label member (`<key>.json`).
+RECORD_EXT = ".json"
+RECORD_FIELD = RECORD_EXT.lstrip(".")  # … as WebDataset names that field
 
 
 def shard_name(index: int) -> str:
@@ -40,6 +49,11 @@ def shard_name(index: int) -> str:
 def sample_key(index: int) -> str:
     """WebDataset key of sample `index` (sorts in sample order)."""
     return f"{index:09d}"
+
+
+def member_names(key: str, ext: str) -> tuple[str, str]:
+    """A sample's two tar members, in the order they are written: its label record, then its image."""
+    return f"{key}{RECORD_EXT}", f"{key}{ext}"
 
 
 def fragment_name(shard: int) -> str:
@@ -61,6 +75,8 @@ def label_schema(params: Sequence[str]) -> pa.Schema:
     Units: parameters in raw pixels (fx…cy) or unitless (coefficients); new_* in output pixels; appd_px in raw
     pixels, appd_pct in % of the raw diagonal.
     """
+    import pyarrow as pa  # here, not at the top: the image codecs and synth import this module for FORMATS alone
+
     return pa.schema([
         ("key", pa.string()), ("shard", pa.string()), ("raw_path", pa.string()), ("split", pa.string()),
         ("camera", pa.string()), ("model", pa.string()), ("sample_index", pa.int64()), ("is_reference", pa.bool_()),

@@ -1,17 +1,29 @@
-"""Writers: deterministic WebDataset tar shards and their Parquet label fragments, each written atomically."""
+"""The writer of a build folder: deterministic WebDataset tar shards, their Parquet label fragments, the index and
+build.json, each written atomically, all named by appdgen.dataset.layout (appdgen.dataset.reader reads them back).
+
+BuildWriter is the one interface: a worker streams a shard's samples into `shard(k)`; the parent marks the shard
+done with `shard_done` (its fragment, written last); `finish` writes labels.parquet and build.json and drops the
+parts. The build, resume and the trainer's synthetic stand-in shards all write through it.
+"""
 from __future__ import annotations
 
+import hashlib
 import io
 import tarfile
 from collections.abc import Sequence
 from contextlib import ExitStack
+import json
+import secrets
+import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from appdgen.util.atomic import atomic_stream, atomic_write
-from appdgen.dataset.layout import STATS_KEY, ShardStats, label_schema
+from appdgen.dataset.layout import (BUILD_JSON, HASH_COLUMN, INDEX, PARTS_DIR, STATS_KEY, ShardStats, fragment_name,
+                                    label_schema, member_names, record_json, shard_name)
 
 
 class TarShard:
@@ -35,6 +47,14 @@ class TarShard:
         info.uid = info.gid = 0
         info.uname = info.gname = ""
         self._tar.addfile(info, io.BytesIO(data))
+
+    def add_sample(self, row: dict, ext: str, data: bytes) -> None:
+        """Append one sample: its label record (`<key>.json`), then its encoded image (`<key><ext>`); sets the
+        row's image hash."""
+        record, image = member_names(row["key"], ext)
+        self.add(record, record_json(row))
+        row[HASH_COLUMN] = hashlib.sha256(data).hexdigest()
+        self.add(image, data)
 
     def __exit__(self, *exc_info) -> None:
         if exc_info[0] is None:
@@ -79,3 +99,38 @@ def _write_table(path: Path, table: pa.Table) -> None:
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink, compression="zstd")
     atomic_write(path, sink.getvalue().to_pybytes())
+
+
+class BuildWriter:
+    """Writes one build folder `out`: shard tars, their fragments under .parts (a shard is done once its fragment
+    is), then labels.parquet and build.json; `params` are the lens model's parameter columns."""
+
+    def __init__(self, out: Path, params: Sequence[str]) -> None:
+        self.out, self.params = Path(out), tuple(params)
+        self.parts = self.out / PARTS_DIR
+
+    def shard(self, shard: int) -> TarShard:
+        """The tar of shard `shard`, to fill in a `with` block (it appears when the block ends cleanly)."""
+        return TarShard(self.out / shard_name(shard))
+
+    def is_done(self, shard: int) -> bool:
+        """Whether a shard's fragment (written last) and tar are both there."""
+        return (self.parts / fragment_name(shard)).is_file() and (self.out / shard_name(shard)).is_file()
+
+    def shard_done(self, stats: ShardStats, rows: list[dict]) -> pa.Table:
+        """Write a finished shard's label rows and stats as its fragment (marking it done); returns the table."""
+        self.parts.mkdir(parents=True, exist_ok=True)
+        return write_fragment(self.parts / fragment_name(stats.shard), rows, self.params, stats)
+
+    def finish(self, shards: int, made: dict[int, pa.Table], summary: Callable[[list[ShardStats]], dict]) -> dict:
+        """Write labels.parquet from the fragments (this run's from memory, `made`) and build.json from
+        summary(stats of every shard), then drop the parts; returns build.json's content."""
+        fragments = [made.get(k, self.parts / fragment_name(k)) for k in range(shards)]
+        write_index(self.out / INDEX, fragments, self.params)
+        content = summary([read_stats(f) for f in fragments])
+        atomic_write(self.out / BUILD_JSON, json.dumps(content, indent=2).encode())
+        # One rename ends the build (a kill during a plain rmtree could leave a plan-less, unresumable .parts).
+        trash = self.out / f".{PARTS_DIR}.{secrets.token_hex(4)}.tmp"
+        self.parts.rename(trash)
+        shutil.rmtree(trash)
+        return content

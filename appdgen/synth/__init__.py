@@ -152,7 +152,7 @@ def frame_name(index: int) -> str:
     return f"frame_{index:06d}.png"
 
 
-def _write_frames(indices: range, calib: Calibration, out: Path, seed: int, scale: float, mount: Mount) -> int:
+def write_frames(indices: range, calib: Calibration, out: Path, seed: int, scale: float, mount: Mount) -> int:
     """Render and write frames `indices` (one task's chunk) with OpenCV on one thread; returns how many."""
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # --jobs says how many cores: one process each
@@ -164,7 +164,7 @@ def _write_frames(indices: range, calib: Calibration, out: Path, seed: int, scal
     return len(indices)
 
 
-def _chunks(frames: int, jobs: int) -> list[range]:
+def frame_chunks(frames: int, jobs: int) -> list[range]:
     """Index ranges small enough for a live progress line and an even finish, large enough to amortise a task."""
     size = 1 if jobs == 1 else max(1, min(8, frames // (4 * jobs)))
     return [range(i, min(i + size, frames)) for i in range(0, frames, size)]
@@ -189,8 +189,8 @@ def synthesize(
         raise AppdgenError(f"frames must be >= 0, got {frames}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    work = functools.partial(_write_frames, calib=calib, out=out, seed=seed, scale=scale, mount=mount)
-    for done in run_unordered(work, _chunks(frames, jobs), jobs):
+    work = functools.partial(write_frames, calib=calib, out=out, seed=seed, scale=scale, mount=mount)
+    for done in run_unordered(work, frame_chunks(frames, jobs), jobs):
         if progress is not None:
             progress(done)
     return [out / frame_name(index) for index in range(frames)]

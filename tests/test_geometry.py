@@ -387,7 +387,7 @@ def test_cross_model_appd_of_one_fisheye_is_small():
 
 def perturbed(calib: Calibration, n: int, seed: int) -> list[Calibration]:
     """n calibrations drawn uniformly (seeded) from the sampler's default ranges around calib."""
-    from appdgen.sampling.sampler import default_ranges
+    from appdgen.sampling.ranges import default_ranges
 
     params, ranges = calib.params(), default_ranges(calib)
     bounds = {name: ranges[name].offsets(params[name]) for name in calib.param_names}

@@ -37,7 +37,9 @@ from appdgen.dataset.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUT
 from appdgen.geometry.maps import Rectification
 from appdgen.util.progress import Progress
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
-from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, default_ranges
+from appdgen.sampling.ranges import Range, default_ranges
+from appdgen.sampling.reach import UnreachableError
+from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Sampler
 from appdgen.dataset.shards import TarShard, read_stats, write_fragment, write_index
 from appdgen.dataset.sources import RawImage, check_complete
 

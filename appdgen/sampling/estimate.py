@@ -1,6 +1,6 @@
 """The coarse APPD estimate a sampler's searches run on: APPD (% of the diagonal) against the reference on a
 coarse output grid (midpoint rule), with quick crops (crop.search_region) whose node boxes are predicted around
-each calibration's room from the reference's, and APPD's slope along a ray at the reference from the grid
+each calibration's slide box (crop.slide_box) from the reference's, and APPD's slope along a ray at the reference from the grid
 positions' Jacobian."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 
 from appdgen.calib.calibration import Calibration
 from appdgen.errors import AppdgenError
-from appdgen.geometry.crop import room, search_region, valid_region
+from appdgen.geometry.crop import search_region, slide_box, valid_region
 from appdgen.geometry.distortion import distort_to_pixels
 from appdgen.sampling.ranges import ParameterBox
 
@@ -36,9 +36,9 @@ class CoarseEstimator:
         rows = max(8, round(cols * h / w))
         # Cell centres of a cols × rows partition of the output image, in output pixels (midpoint rule).
         self._grid = np.meshgrid((np.arange(cols) + 0.5) * w / cols - 0.5, (np.arange(rows) + 0.5) * h / rows - 0.5)
-        # The search's crops put their nodes on a box predicted around each calibration's room (search_region):
+        # The search's crops put their nodes on a box predicted around each calibration's slide box (search_region):
         # no frame box per evaluation, which was ~40 % of its cost.
-        self.reference_room, self._room_slopes = self._room_model()
+        self.reference_slide_box, self._slide_box_slopes = self._slide_box_model()
         self._ref_points = self._positions(self.reference)
         self._jacobian = self._position_jacobian()
 
@@ -67,11 +67,11 @@ class CoarseEstimator:
         moved = np.tensordot(offsets, self._jacobian[free], axes=1)  # n × 2 × rows × cols
         return np.hypot(moved[:, 0], moved[:, 1]).mean(axis=(1, 2))
 
-    def _room_model(self) -> tuple[np.ndarray, np.ndarray]:
-        """The reference's room (x0, x1, y0, y1; crop.room) and each side's secant slope per parameter, towards
+    def _slide_box_model(self) -> tuple[np.ndarray, np.ndarray]:
+        """The reference's slide box (x0, x1, y0, y1; crop.slide_box) and each side's secant slope per parameter, towards
         its range's low end and towards its high end (P × 2 × 4, normalized per parameter unit)."""
         box = self.box
-        ref = np.array(room(self.reference, SEARCH_NODES, self.max_fov))
+        ref = np.array(slide_box(self.reference, SEARCH_NODES, self.max_fov))
         slopes = np.zeros((len(box.names), 2, 4))
         for j, ends in enumerate(zip(box.low, box.high)):
             for side, end in enumerate(ends):
@@ -79,18 +79,18 @@ class CoarseEstimator:
                     step = np.zeros(len(box.names))
                     step[j] = end
                     try:
-                        moved = room(box.calibration(step), SEARCH_NODES, self.max_fov)
+                        moved = slide_box(box.calibration(step), SEARCH_NODES, self.max_fov)
                     except AppdgenError:  # an invalid end: no slope that way (search_region catches what it misses)
                         continue
                     slopes[j, side] = (np.array(moved) - ref) / end
         return ref, slopes
 
     def _search_box(self, calib: Calibration) -> tuple[float, float, float, float]:
-        """A node box (normalized) about calib's room as the reference's room and the secant slopes predict it,
-        plus 15 % of its size a side (search_region redoes a crop whose room reaches the box on its own box)."""
+        """A node box (normalized) about calib's slide box as the reference's and the secant slopes predict it,
+        plus 15 % of its size a side (search_region redoes a crop whose slide box reaches the box on its own box)."""
         offsets = self.box.offsets(calib)
-        slopes = np.where((offsets < 0)[:, None], self._room_slopes[:, 0], self._room_slopes[:, 1])
-        x0, x1, y0, y1 = self.reference_room + offsets @ slopes
+        slopes = np.where((offsets < 0)[:, None], self._slide_box_slopes[:, 0], self._slide_box_slopes[:, 1])
+        x0, x1, y0, y1 = self.reference_slide_box + offsets @ slopes
         pad_x, pad_y = 0.15 * (x1 - x0), 0.15 * (y1 - y0)
         return (x0 - pad_x, x1 + pad_x, y0 - pad_y, y1 + pad_y)
 

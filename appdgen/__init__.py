@@ -13,8 +13,8 @@ from typing import Any
 
 from appdgen.calib.calibration import PARAMS, Calibration
 from appdgen.errors import AppdgenError
+from appdgen.version import __version__
 
-__version__ = "0.2.0"
 #: Public name → the module that owns it (imported on first use).
 _LAZY = {"load": "appdgen.calib.formats", "rectify": "appdgen.geometry.maps", "appd": "appdgen.geometry.appd",
          "Sampler": "appdgen.sampling.sampler", "BuildConfig": "appdgen.dataset.build",

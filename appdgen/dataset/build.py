@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 import pyarrow as pa
 
-from appdgen import __version__
+from appdgen.version import __version__
 from appdgen.geometry.appd import px_to_pct
 from appdgen.util.atomic import atomic_write, temporary_target
 from appdgen.calib.calibration import Calibration

@@ -271,7 +271,7 @@ def fits_somewhere(ok: np.ndarray, cells_x: int, cells_y: int) -> bool:
     return bool((count == 0).any())
 
 
-def check_crop(calib: Calibration, max_fov: float | None) -> None:
+def assert_crop_sound(calib: Calibration, max_fov: float | None) -> None:
     """valid_region's crop: border inside the frame to 0.001 px, unfolded, and maximal against brute force."""
     crop = valid_region(calib, max_fov=max_fov)
     u, v = reference_plane_pixels(*edge_points(crop, 4001), calib)
@@ -294,7 +294,7 @@ def check_crop(calib: Calibration, max_fov: float | None) -> None:
 
 @pytest.mark.parametrize("name", sorted(MODEL_CASES))
 def test_crop_is_valid_and_maximal_for_every_model(name):
-    check_crop(*MODEL_CASES[name])
+    assert_crop_sound(*MODEL_CASES[name])
 
 
 def real_cameras(shared) -> list[tuple[str, Calibration]]:
@@ -316,7 +316,7 @@ def test_real_files_get_valid_maximal_crops(shared):
         except AppdgenError as error:  # fisheyes that see past 90° inside the frame: TUM VI, T265
             assert "--max-fov" in str(error) and calib.model == "kb4", (name, error)
             max_fov = 120.0
-        check_crop(calib, max_fov)
+        assert_crop_sound(calib, max_fov)
 
 
 def test_kodak_wide_angle_gets_a_crop_past_its_folded_corners(shared):

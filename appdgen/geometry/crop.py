@@ -131,8 +131,8 @@ def search_region(calib: Calibration, box: tuple[float, float, float, float], no
 
 
 def slide_box(calib: Calibration, nodes: int, max_fov: float | None = None) -> tuple[float, float, float, float]:
-    """(x0, x1, y0, y1), normalized: the slide box, where the boundary curves bind around R (R's own extent along an axis it fills), from the
-    boundary curves on `nodes` nodes over the calibration's own box."""
+    """(x0, x1, y0, y1), normalized: the slide box, where the boundary curves bind around R (R's own extent along
+    an axis it fills), from the boundary curves on `nodes` nodes over the calibration's own box."""
     crop, bounds = _nodes_region(calib, nodes, _bounded_box(calib, radial_fold_radius(calib), max_fov))
     return _slide_box_of(bounds, crop)
 

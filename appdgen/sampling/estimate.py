@@ -1,7 +1,7 @@
 """The coarse APPD estimate a sampler's searches run on: APPD (% of the diagonal) against the reference on a
 coarse output grid (midpoint rule), with quick crops (crop.search_region) whose node boxes are predicted around
-each calibration's slide box (crop.slide_box) from the reference's, and APPD's slope along a ray at the reference from the grid
-positions' Jacobian."""
+each calibration's slide box (crop.slide_box) from the reference's, and APPD's slope along a ray at the
+reference from the grid positions' Jacobian."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -68,8 +68,8 @@ class CoarseEstimator:
         return np.hypot(moved[:, 0], moved[:, 1]).mean(axis=(1, 2))
 
     def _slide_box_model(self) -> tuple[np.ndarray, np.ndarray]:
-        """The reference's slide box (x0, x1, y0, y1; crop.slide_box) and each side's secant slope per parameter, towards
-        its range's low end and towards its high end (P × 2 × 4, normalized per parameter unit)."""
+        """The reference's slide box (x0, x1, y0, y1; crop.slide_box) and each side's secant slope per parameter,
+        towards its range's low end and towards its high end (P × 2 × 4, normalized per parameter unit)."""
         box = self.box
         ref = np.array(slide_box(self.reference, SEARCH_NODES, self.max_fov))
         slopes = np.zeros((len(box.names), 2, 4))

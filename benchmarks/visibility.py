@@ -21,7 +21,7 @@ from appdgen.calib.calibration import Calibration
 from appdgen.geometry.distortion import undistort_pixels
 from appdgen.geometry.maps import Rectification, rectify
 from appdgen.dataset.reader import open_build
-from appdgen.sampling.sampler import parse_ranges
+from appdgen.sampling.ranges import parse_ranges
 
 STRIDE = 4  # output pixels between evaluated grid points: the split is smooth, a coarse grid suffices
 

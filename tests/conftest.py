@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from appdgen.calib.calibration import Calibration
-from appdgen.sampling.sampler import PAPER_RANGES  # noqa: F401  (re-exported to the tests)
+from appdgen.sampling.ranges import PAPER_RANGES  # noqa: F401  (re-exported to the tests)
 from helpers import Setup, kitti_text, raw_image, run_cli, run_with_full_disk, scaled, write_png
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -150,7 +150,7 @@ def shard_members(path: Path) -> dict[str, bytes]:
     return members
 
 
-def check_shard(path: Path, setup: Setup, rows: list[dict] | None = None) -> None:
+def assert_shard_complete(path: Path, setup: Setup, rows: list[dict] | None = None) -> None:
     """A complete shard: one json and one image per sample of its range; when rows are given, they agree."""
     indices = setup.indices(int(path.name.removeprefix("shard-").removesuffix(".tar")))
     members = shard_members(path)
@@ -167,10 +167,10 @@ def fragment_rows(out: Path, shard: str) -> list[dict] | None:
     return pq.read_table(path).to_pylist() if path.is_file() else None
 
 
-def check_interrupted(out: Path, setup: Setup) -> None:
+def assert_killed_build_sound(out: Path, setup: Setup) -> None:
     """What a killed build leaves: every visible shard complete, and matching its fragment when there is one."""
     for path in sorted(out.glob("shard-*.tar")):
-        check_shard(path, setup, fragment_rows(out, path.name))
+        assert_shard_complete(path, setup, fragment_rows(out, path.name))
 
 
 class FullDisk:

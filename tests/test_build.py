@@ -22,8 +22,8 @@ from appdgen.util.distribute import run_unordered
 from appdgen.dataset.layout import STAGES
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
-from helpers import (Setup, assert_one_line_error, assert_same_build, check_interrupted, check_shard, kill_group,
-                     kitti_text, raw_image, run_cli, spawn_cli, tree_digest, write_png)
+from helpers import (Setup, assert_killed_build_sound, assert_one_line_error, assert_same_build, assert_shard_complete,
+                     kill_group, kitti_text, raw_image, run_cli, spawn_cli, tree_digest, write_png)
 
 SIZE = (87, 32)  # output size of the sampler checks: KITTI's aspect exactly
 
@@ -43,7 +43,7 @@ def _watch_until_first_shard(process: subprocess.Popen, out: Path, setup: Setup,
         assert all(n in final or n.startswith("shard-") or temporary_target(n) for n in names), names
         shards = sorted(out.glob("shard-*.tar"))
         for path in shards:
-            check_shard(path, setup)
+            assert_shard_complete(path, setup)
         if shards:
             return
         time.sleep(0.005)
@@ -58,7 +58,7 @@ def test_killed_build_resumes_to_identical_bytes(setup: Setup, reference_build: 
     finally:
         kill_group(process)
     assert (out / ".parts" / "plan.json").is_file() and not (out / "labels.parquet").exists(), "not killed mid-build"
-    check_interrupted(out, setup)
+    assert_killed_build_sound(out, setup)
     result = run_cli(setup.args(out, "--resume"))
     assert result.exit_code == 0, result.output
     assert_same_build(out, reference_build)
@@ -164,7 +164,7 @@ def test_shards_agree_with_labels_and_build_json(reference_build: Path, setup: S
     assert [s["file"] for s in build["shards"]] == [f"shard-{k:06d}.tar" for k in range(setup.shards)]
     for entry in build["shards"]:
         mine = [r for r in rows if r["shard"] == entry["file"]]
-        check_shard(reference_build / entry["file"], setup, mine)
+        assert_shard_complete(reference_build / entry["file"], setup, mine)
         assert entry["samples"] == len(mine) and entry["splits"] == dict(Counter(r["split"] for r in mine))
         assert entry["bytes"] == (reference_build / entry["file"]).stat().st_size
     assert build["counts"]["samples"] == setup.samples and build["counts"]["shards"] == setup.shards

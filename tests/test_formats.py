@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 from appdgen import AppdgenError, Calibration, lens
 from appdgen.calib import formats
 from appdgen.calib.formats import list_cameras, load, save
+from appdgen.calib.nuscenes import NUSCENES_SIZE
 
 FIXTURES = Path(__file__).parent / "data" / "calib"
 VALID = sorted(p for p in FIXTURES.iterdir() if not p.name.startswith("bad_"))
@@ -161,7 +162,7 @@ def test_real_nuscenes(shared: Path) -> None:
     path = shared / "formats" / "nuscenes_calibrated_sensor.json"
     intrinsic = json.loads(path.read_text())[0]["camera_intrinsic"]
     assert list_cameras(path) == ["0"]
-    _same(load(path), *formats.NUSCENES_SIZE, intrinsic, [])
+    _same(load(path), *NUSCENES_SIZE, intrinsic, [])
     assert load(path, size=(800, 450)).size == (800, 450)
 
 

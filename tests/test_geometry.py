@@ -6,7 +6,7 @@ import pytest
 
 from appdgen.geometry.appd import appd, appd_px
 from appdgen.calib.calibration import Calibration
-from appdgen.geometry.crop import check_output_size, room, search_region, valid_region
+from appdgen.geometry.crop import check_output_size, search_region, slide_box, valid_region
 from appdgen.errors import AppdgenError
 from appdgen.geometry.maps import rectify
 from conftest import KITTI_2011_09_26, PAPER_RANGES
@@ -66,15 +66,15 @@ def test_kitti02_crop_is_height_limited_and_centred(kitti02):
     u, v = lens_pixels(x, y, kitti02)
     top, bottom = v[:20001], v[20001:40002]
     left, right = u[40002:60003], u[60003:]
-    # Height-limited: top and bottom edges touch the frame within 0.005 px, the sides have room to spare.
+    # Height-limited: top and bottom edges touch the frame within 0.005 px, the sides have slack.
     assert top.min() == pytest.approx(0.0, abs=5e-3)
     assert bottom.max() == pytest.approx(kitti02.height - 1, abs=5e-3)
     assert left.min() > 1.0 and right.max() < kitti02.width - 2.0
     # Free to slide horizontally, it sits in the middle of the range of feasible positions.
-    room_left, room_right = slide_room(kitti02, crop, -1), slide_room(kitti02, crop, +1)
+    slack_left, slack_right = slide_distance(kitti02, crop, -1), slide_distance(kitti02, crop, +1)
     output_px = (crop.x1 - crop.x0) / kitti02.width
-    assert room_left > 50 * output_px
-    assert abs(room_left - room_right) < 0.01 * output_px
+    assert slack_left > 50 * output_px
+    assert abs(slack_left - slack_right) < 0.01 * output_px
     # ... which for this camera is nearly symmetric about the principal point.
     assert abs(crop.x0 + crop.x1) / 2 < 10 * output_px
 
@@ -85,7 +85,7 @@ def fits(calib: Calibration, crop) -> bool:
     return bool(u.min() >= 0 and v.min() >= 0 and u.max() <= calib.width - 1 and v.max() <= calib.height - 1)
 
 
-def slide_room(calib: Calibration, crop, direction: int) -> float:
+def slide_distance(calib: Calibration, crop, direction: int) -> float:
     """How far (normalized) the crop slides sideways and stays valid, by bisection (1e-6 shaved off vertically)."""
     lo, hi = 0.0, 0.5
     for _ in range(50):
@@ -191,16 +191,16 @@ def test_appd_does_not_depend_on_where_the_maps_lie_in_memory(kitti02):
     assert values == {appd_px(a, b)}  # to the last bit: builds must not depend on the worker
 
 
-def test_search_region_is_the_nodes_crop_on_a_box_about_its_room_or_none(kitti02):
+def test_search_region_is_the_nodes_crop_on_a_box_about_its_slide_box_or_none(kitti02):
     for calib in random_calibrations(kitti02, 20, seed=5):
-        x0, x1, y0, y1 = room(calib, 257)
+        x0, x1, y0, y1 = slide_box(calib, 257)
         pad_x, pad_y = 0.15 * (x1 - x0), 0.15 * (y1 - y0)
         quick = search_region(calib, (x0 - pad_x, x1 + pad_x, y0 - pad_y, y1 + pad_y), 257)
         exact = valid_region(calib)
         px_per_unit = 1392 / (exact.x1 - exact.x0)
         assert max(abs(quick.x0 - exact.x0), abs(quick.x1 - exact.x1), abs(quick.y0 - exact.y0),
                    abs(quick.y1 - exact.y1)) * px_per_unit < 0.05  # output px: the search's estimate
-        # A box that cuts the room (here: along the axis the crop slides) gives no crop rather than a wrong one.
+        # A box that cuts the slide box (here: along the axis the crop slides) gives no crop rather than a wrong one.
         assert search_region(calib, (x0 - pad_x, x1 + pad_x, 0.5 * y0, 0.5 * y1), 257) is None
 
 
@@ -271,7 +271,7 @@ def fits_somewhere(ok: np.ndarray, cells_x: int, cells_y: int) -> bool:
     return bool((count == 0).any())
 
 
-def check_crop(calib: Calibration, max_fov: float | None) -> None:
+def assert_crop_sound(calib: Calibration, max_fov: float | None) -> None:
     """valid_region's crop: border inside the frame to 0.001 px, unfolded, and maximal against brute force."""
     crop = valid_region(calib, max_fov=max_fov)
     u, v = reference_plane_pixels(*edge_points(crop, 4001), calib)
@@ -294,7 +294,7 @@ def check_crop(calib: Calibration, max_fov: float | None) -> None:
 
 @pytest.mark.parametrize("name", sorted(MODEL_CASES))
 def test_crop_is_valid_and_maximal_for_every_model(name):
-    check_crop(*MODEL_CASES[name])
+    assert_crop_sound(*MODEL_CASES[name])
 
 
 def real_cameras(shared) -> list[tuple[str, Calibration]]:
@@ -316,7 +316,7 @@ def test_real_files_get_valid_maximal_crops(shared):
         except AppdgenError as error:  # fisheyes that see past 90° inside the frame: TUM VI, T265
             assert "--max-fov" in str(error) and calib.model == "kb4", (name, error)
             max_fov = 120.0
-        check_crop(calib, max_fov)
+        assert_crop_sound(calib, max_fov)
 
 
 def test_kodak_wide_angle_gets_a_crop_past_its_folded_corners(shared):
@@ -387,7 +387,7 @@ def test_cross_model_appd_of_one_fisheye_is_small():
 
 def perturbed(calib: Calibration, n: int, seed: int) -> list[Calibration]:
     """n calibrations drawn uniformly (seeded) from the sampler's default ranges around calib."""
-    from appdgen.sampling.sampler import default_ranges
+    from appdgen.sampling.ranges import default_ranges
 
     params, ranges = calib.params(), default_ranges(calib)
     bounds = {name: ranges[name].offsets(params[name]) for name in calib.param_names}

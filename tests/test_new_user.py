@@ -21,7 +21,7 @@ from appdgen.util.distribute import BACKENDS, resolve_jobs
 from appdgen.errors import AppdgenError
 from appdgen.dataset.layout import FORMATS, STAGES, ShardStats
 from appdgen.geometry.remap import INTERPOLATIONS
-from appdgen.sampling.sampler import UnreachableError
+from appdgen.sampling.reach import UnreachableError
 from appdgen.dataset.sources import SPLIT_BY, RawImage, list_images
 from helpers import Setup, assert_one_line_error, assert_same_build, kitti_text, run_cli, run_with_full_disk
 
@@ -220,11 +220,11 @@ def test_shard_stats_are_a_typed_record() -> None:
 def test_architecture_names_the_modules_that_exist() -> None:
     text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
     named = set(re.findall(r"`?\b([a-z_]+)\.py\b", text)) | set(re.findall(r"(?<![.\w])([a-z_]+)/`", text))
-    packages = [ROOT / "appdgen", ROOT / "train", ROOT / "benchmarks"]
+    packages = [ROOT / "appdgen", ROOT / "train", ROOT / "benchmarks", ROOT / "tests"]
     missing = [n for n in sorted(named) if not any(list(p.rglob(f"{n}.py")) for p in packages)
                and not (ROOT / "appdgen" / n).is_dir() and not (ROOT / n).is_dir()]
     assert not missing, missing
-    for module in ("layout", "sampling", "build", "reader", "inspect", "verify", "sources", "shards"):
+    for module in ("layout", "sampler", "build", "reader", "inspect", "verify", "sources", "shards", "formats", "crop"):
         assert f"{module}.py" in text, module
 
 

@@ -49,6 +49,46 @@ def test_readme_reading_a_build_prints_what_it_says(quickstart: Path) -> None:
     shown = re.search(r"<!-- /reading-a-build -->\s*```\n(.*?)```", text, re.S)
     assert shown, "README.md lost the output of its reading-a-build block"
     result = subprocess.run([sys.executable, "-c", readme_block("reading-a-build", "python")], cwd=quickstart,
-                            capture_output=True, text=True, timeout=120)
+                            env=this_checkout(), capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout == shown.group(1)
+
+
+def this_checkout() -> dict[str, str]:
+    """The environment with this checkout first on PYTHONPATH, so that a subprocess imports this appdgen."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+
+
+def python_section() -> tuple[str, str]:
+    """The README's Python example between <!-- python --> and <!-- /python -->: (its code, the output it shows)."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = re.search(r"<!-- python -->\s*```python\n(.*?)```\s*```\n(.*?)```\s*<!-- /python -->", text, re.S)
+    assert block, "README.md lost its Python example"
+    return block.group(1), block.group(2)
+
+
+def test_readme_python_example_prints_what_it_shows(tmp_path):
+    code, shown = python_section()
+    for name in ("load", "rectify", "appd", "Sampler", "BuildConfig", "build", "open_build", "AppdgenError"):
+        assert f"appdgen.{name}" in code, name  # every public name of the section is exercised
+    result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=this_checkout(),
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == shown
+    assert len(list((tmp_path / "shards").glob("shard-*.tar"))) == 2
+
+
+def test_the_public_names_load_lazily_from_their_owners():
+    code = ("import sys, appdgen; heavy = [m for m in ('yaml', 'pyarrow') if m in sys.modules]; "
+            "from appdgen.dataset.build import build; from appdgen.calib.formats import load; "
+            "print(heavy, appdgen.build is build, appdgen.load is load, "
+            "sorted(set(appdgen.__all__) - set(dir(appdgen))))")
+    result = subprocess.run([sys.executable, "-c", code], env=this_checkout(), capture_output=True, text=True,
+                            timeout=60)
+    assert result.stdout.strip() == "[] True True []", result.stderr
+
+
+def test_python_m_appdgen_runs_the_command_line():
+    result = subprocess.run([sys.executable, "-m", "appdgen", "build", "--help"], env=this_checkout(),
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0 and "--calib" in result.stdout, result.stderr

@@ -16,10 +16,10 @@ from hypothesis import strategies as st
 
 from appdgen.calib.calibration import PARAMS
 from appdgen.errors import AppdgenError
-from appdgen.sampling.sampler import parse_ranges
+from appdgen.sampling.ranges import parse_ranges
 from appdgen.dataset.sources import SPLIT_BY, _read_list, list_images
-from helpers import (Setup, assert_one_line_error, assert_same_build, check_interrupted, check_shard, kill_group,
-                     run_cli, run_with_full_disk, spawn_cli, tree_digest)
+from helpers import (Setup, assert_killed_build_sound, assert_one_line_error, assert_same_build, assert_shard_complete,
+                     kill_group, run_cli, run_with_full_disk, spawn_cli, tree_digest)
 
 BAD = Path(__file__).parent / "data" / "bad"
 BASE = {"--calib": "ok_calib.txt", "--images": "ok_images", "--samples": "4", "--shard-size": "2", "--size": "87x32",
@@ -265,7 +265,7 @@ def test_random_kills_then_resume_give_identical_bytes(long_setup: Setup, tmp_pa
         for args in (long_setup.args(out, jobs=jobs), long_setup.args(out, "--resume", jobs=jobs)):  # kill a resume too
             killed = _kill_at(args, rng.uniform(0.5 * startup, startup + work), tmp_path / "kill.log")
             interrupted += (out / ".parts" / "plan.json").is_file()  # .parts goes when a build ends
-            check_interrupted(out, long_setup)
+            assert_killed_build_sound(out, long_setup)
             if not killed:
                 break
         result = run_cli(long_setup.args(out, "--resume"))
@@ -311,7 +311,7 @@ def test_full_disk_fails_cleanly_then_resumes_to_identical_bytes(setup: Setup, r
     line = assert_one_line_error(run_with_full_disk(setup.args(out), fail_at), f"--out {out}",
                                  "No space left on device")
     assert fail_at == 1 or "rerun with --resume" in line
-    check_interrupted(out, setup)
+    assert_killed_build_sound(out, setup)
     assert not [p for p in out.rglob("*.tmp")], "a temporary file was left behind"
     result = run_cli(setup.args(out, "--resume"))
     assert result.exit_code == 0, result.output
@@ -324,7 +324,7 @@ def test_full_disk_fails_cleanly_then_resumes_to_identical_bytes(setup: Setup, r
 def test_shard_members_are_plain_files_with_safe_names(reference_build: Path, setup: Setup) -> None:
     safe = getattr(tarfile, "data_filter", None)  # the stdlib's safe-extraction rules (3.10.12+, 3.11.4+)
     for shard in sorted(reference_build.glob("shard-*.tar")):
-        check_shard(shard, setup)  # plain files named <key>.json / <key>.png: no links, '..', '/' or absolute names
+        assert_shard_complete(shard, setup)  # plain files named <key>.json / <key>.png: no links, '..', '/' or absolute names
         with tarfile.open(shard) as tar:
             for member in tar.getmembers():
                 assert (member.mode, member.uid, member.gid, member.mtime) == (0o644, 0, 0, 0)

@@ -15,8 +15,11 @@ from appdgen.geometry.crop import valid_region
 from appdgen.util.distribute import run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.geometry.crop import check_max_fov
-from appdgen.sampling.sampler import (PAPER_RANGES, ZERO_RANGES, Range, Sampler, UnreachableError,
-                              default_ranges, paper_ranges, parse_ranges)
+from appdgen.sampling.ranges import PAPER_RANGES, ZERO_RANGES, Range, default_ranges, paper_ranges, parse_ranges
+from appdgen.sampling.reach import UnreachableError
+from appdgen.sampling.sampler import Sampler
+from appdgen.sampling.estimate import Estimate
+from appdgen.sampling.search import MAX_EVALUATIONS, solve_ray
 from helpers import sampler_draws, scaled
 
 SIZE = (87, 32)
@@ -109,12 +112,12 @@ def test_ranges_of_another_model(model: str, kitti02: Calibration) -> None:
 
 def test_reach_finds_at_least_what_random_points_of_the_box_find(kitti02: Calibration) -> None:
     sampler = Sampler(scaled(kitti02, 8), size=SIZE)
-    largest, offsets = sampler.reach()
-    assert sampler._evaluate(offsets)[1] == largest  # the point found really has that APPD
-    assert np.all(offsets >= sampler._low) and np.all(offsets <= sampler._high)
+    largest, offsets = sampler.reach().appd_pct, sampler.reach().offsets
+    assert sampler.estimator.evaluate(offsets).appd_pct == largest  # the point found really has that APPD
+    assert np.all(offsets >= sampler.box.low) and np.all(offsets <= sampler.box.high)
     rng = np.random.default_rng(0)
-    points = [sampler._evaluate(rng.uniform(sampler._low, sampler._high)) for _ in range(300)]
-    assert largest >= max(p[1] for p in points if p is not None)
+    points = [sampler.estimator.evaluate(rng.uniform(sampler.box.low, sampler.box.high)) for _ in range(300)]
+    assert largest >= max(p.appd_pct for p in points if p is not None)
 
 
 def test_without_distortion_focal_and_centre_give_no_appd() -> None:
@@ -134,7 +137,7 @@ def test_an_unreachable_appd_max_is_refused_with_the_reachable_maximum() -> None
                                                r"--appd-max or widen --ranges") as caught:
         sampler.check_reachable()
     assert "without lens distortion" in str(caught.value)
-    largest = sampler.reach()[0]
+    largest = sampler.reach().appd_pct
     Sampler(camera, ranges, appd_max=0.95 * largest, size=(423, 339)).check_reachable()  # reachable: no error
 
 
@@ -143,7 +146,7 @@ def test_a_target_no_random_ray_reaches_is_solved_along_the_reachable_maximum(ki
     # reach() found does (before, the build stopped mid-way with 'none reached').
     camera = scaled(kitti02, 8)
     probe = Sampler(camera, size=SIZE)
-    sampler = Sampler(camera, size=SIZE, appd_max=0.98 * probe.reach()[0], max_directions=1, zero_fraction=0)
+    sampler = Sampler(camera, size=SIZE, appd_max=0.98 * probe.reach().appd_pct, max_directions=1, zero_fraction=0)
     draws = [sampler.draw(0, i) for i in range(20)]
     assert all(abs(d.estimate_pct - d.target_pct) <= 0.01 * sampler.appd_max for d in draws)
 
@@ -154,9 +157,10 @@ def test_a_target_no_random_ray_reaches_is_solved_along_the_reachable_maximum(ki
 def test_a_search_that_does_not_converge_gives_no_label(kitti02: Calibration, monkeypatch) -> None:
     sampler = Sampler(scaled(kitti02, 8), size=SIZE)
     # APPD jumping over the target (a step at λ = 0.5): regula falsi never gets within tolerance.
-    monkeypatch.setattr(sampler, "_evaluate", lambda offsets: (sampler.reference, 0.4 if offsets[0] < 0.5 else 0.8))
-    found, evaluations = sampler._solve(np.ones(9), 0.6)
-    assert found is None and evaluations == 30
+    monkeypatch.setattr(sampler.estimator, "evaluate",
+                        lambda offsets: Estimate(sampler.reference, 0.4 if offsets[0] < 0.5 else 0.8))
+    solution = solve_ray(sampler.estimator, np.ones(9), 0.6, sampler.tolerance * sampler.appd_max)
+    assert solution.found is None and solution.evaluations == MAX_EVALUATIONS == 30
 
 
 def test_labels_never_exceed_appd_max(kitti02: Calibration) -> None:

@@ -18,7 +18,7 @@ from appdgen.calib.calibration import DISTORTION, Calibration
 from appdgen.geometry.crop import Crop, valid_region
 from appdgen.geometry.distortion import distort_to_pixels, undistort_pixels
 from appdgen.errors import AppdgenError
-from appdgen.sampling.sampler import PAPER_RANGES
+from appdgen.sampling.ranges import PAPER_RANGES
 from appdgen.geometry.maps import Rectification, rectify
 
 #: The two reprojection scenarios of the paper's figure: (a) synthetic and (b) physical.

@@ -11,7 +11,7 @@ from typing import IO, Any, Callable
 
 import click
 
-from appdgen import __version__
+from appdgen.version import __version__
 from appdgen.calib.calibration import Calibration
 from appdgen.errors import AppdgenError
 

@@ -96,7 +96,7 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
     from appdgen.dataset.build import BuildConfig, build as run_build
     from appdgen.util.distribute import resolve_jobs
-    from appdgen.sampling.sampler import parse_ranges
+    from appdgen.sampling.ranges import parse_ranges
     from appdgen.dataset.sources import check_images, list_images
 
     if samples is not None and per_image is not None:

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 import pyarrow as pa
 
-from appdgen import __version__
+from appdgen.version import __version__
 from appdgen.geometry.appd import px_to_pct
 from appdgen.util.atomic import atomic_write, temporary_target
 from appdgen.calib.calibration import Calibration
@@ -36,7 +36,9 @@ from appdgen.dataset.layout import (FORMATS, INDEX, OUTPUT_NAMES, PARTS_DIR, PLA
 from appdgen.geometry.maps import Rectification
 from appdgen.util.progress import Progress
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
-from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Range, Sampler, UnreachableError, default_ranges
+from appdgen.sampling.ranges import Range, default_ranges
+from appdgen.sampling.reach import UnreachableError
+from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Sampler
 from appdgen.dataset.shards import BuildWriter
 from appdgen.dataset.sources import RawImage, check_complete
 

@@ -1,0 +1,3 @@
+"""The package's version, at the ground so that any stage may record it (build.json, --version)."""
+
+__version__ = "0.2.0"

@@ -73,9 +73,11 @@ def raw_positions_batch(calibs: Sequence[Calibration], new_ks: Sequence[np.ndarr
       It grows with the frame: float32 maps hold 1e-3 px up to ~8,000 px wide (ulp(8192) = 9.8e-4). Pixels are
       therefore formed last, u = fx·m_x + cx, from coordinates relative to the principal point.
     * K̂⁻¹. The output plane x = (j − ĉx)/f̂x, y = (i − ĉy)/f̂y is computed in float64 on the host (w + h numbers
-      per image) and rounded once, instead of j·(1/f̂x) − ĉx/f̂x in float32 on the device, which cancels.
+      per image) and rounded once. The float32 alternative, j·(1/f̂x) − ĉx/f̂x on the device, cancels to
+      ~ulp(1) normalized; measured no worse for these cameras (the pixel rounding dominates), but it is free.
     * Polynomials. The models evaluate them by Horner's rule on normalized coordinates (|x| ≲ 2), so no large
       terms cancel; kb4's θd/r takes its axis limit below r² = 1e-20 in every namespace.
+    """
     if len({c.model for c in calibs}) != 1:
         raise AppdgenError(f"raw_positions_batch: one lens model per batch, got {sorted({c.model for c in calibs})}")
     new_ks = np.asarray(new_ks, dtype=np.float64).reshape(-1, 3, 3)

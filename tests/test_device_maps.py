@@ -77,6 +77,9 @@ def test_batched_maps_hold_one_calibration_per_row(name):
     for i, rect in enumerate(rects):
         assert worst((map_x[i], map_y[i]), rect) <= 2e-4
     assert worst((map_x[0], map_y[0]), rects[1]) > 0.1  # rows really differ
+    chunked = raw_positions_batch(calibs, [r.new_camera_matrix for r in rects], size,
+                                  like=torch.empty(0, dtype=torch.float64), chunk=2)
+    assert torch.equal(chunked[0], map_x) and torch.equal(chunked[1], map_y)
 
 
 def test_numpy_namespace_gives_the_same_maps():

@@ -25,8 +25,13 @@ def maps_batch(calibs: Sequence[Calibration], new_ks: Sequence[np.ndarray] | np.
                device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
     """(map_x, map_y): N×h×w raw-pixel positions of each output pixel of camera new_ks[i] (3×3) at size (w, h),
     through calibs[i], computed on `device` in `dtype`."""
+    like = torch.empty(0, device=device, dtype=dtype)
+    # On a CPU image by image: a batch's N×h×w temporaries leave the cache. Measured on one core, 16 KITTI
+    # images, alternating in one run: 0.86 vs 1.40 ms an image at 348x128, 23.7 vs 51.3 ms at 1392x512. An
+    # accelerator takes the batch in one pass.
+    chunk = 1 if like.device.type == "cpu" else None
     try:
-        return raw_positions_batch(calibs, new_ks, size, like=torch.empty(0, device=device, dtype=dtype))
+        return raw_positions_batch(calibs, new_ks, size, like, chunk=chunk)
     except AppdgenError as e:
         raise TrainError(str(e)) from None
 

@@ -60,10 +60,11 @@ def raw_positions(calib: Calibration, new_k: np.ndarray, size: tuple[int, int], 
 
 
 def raw_positions_batch(calibs: Sequence[Calibration], new_ks: Sequence[np.ndarray] | np.ndarray,
-                        size: tuple[int, int], like: Any) -> tuple[Any, Any]:
+                        size: tuple[int, int], like: Any, chunk: int | None = None) -> tuple[Any, Any]:
     """(map_x, map_y): N×h×w raw-pixel positions, row i for calibs[i] and output camera new_ks[i] (3×3, pixels) at
     size (w, h), computed in `like`'s namespace, on its device, in its floating dtype, by the lens layer's own
-    `project` (one model per batch; the coefficients broadcast as N×1×1 arrays).
+    `project` (one model per batch; the coefficients broadcast as N×1×1 arrays), `chunk` images per pass (None:
+    all at once; small chunks keep a CPU's temporaries in cache).
 
     Equal to rectify()'s maps (OpenCV's for radtan and rational, numpy's float32 ones otherwise) to ≤ 1e-3 px in
     float32 (tests/test_device_maps.py). Where float32 loses precision, and how it is kept:
@@ -86,6 +87,17 @@ def raw_positions_batch(calibs: Sequence[Calibration], new_ks: Sequence[np.ndarr
     xp, device, dtype = array_api_compat.array_namespace(like), array_api_compat.device(like), like.dtype
     if not xp.isdtype(dtype, "real floating"):
         raise AppdgenError(f"raw_positions_batch: maps need a floating dtype, got {dtype}")
+    step = chunk or len(calibs)
+    parts = [_positions(calibs[i:i + step], new_ks[i:i + step], size, xp, device, dtype)
+             for i in range(0, len(calibs), step)]
+    if len(parts) == 1:
+        return parts[0]
+    return xp.concat([p[0] for p in parts]), xp.concat([p[1] for p in parts])
+
+
+def _positions(calibs: Sequence[Calibration], new_ks: np.ndarray, size: tuple[int, int], xp: Any, device: Any,
+               dtype: Any) -> tuple[Any, Any]:
+    """raw_positions_batch of one chunk, its arguments checked."""
     planes = [output_plane(k, size) for k in new_ks]
     x = xp.asarray(np.stack([p[0] for p in planes]), dtype=dtype, device=device)  # N×1×w
     y = xp.asarray(np.stack([p[1] for p in planes]), dtype=dtype, device=device)  # N×h×1

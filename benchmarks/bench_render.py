@@ -6,7 +6,7 @@ rectify(calib, size, crop) then cv2.remap; or rectify_batch on a batch); "maps r
 beforehand (an offline bank of maps). The draws and their crops are made before timing (the sampler's cost is
 bench_geometry's). Ratios are to cv2 LANCZOS4 with fresh Θm at the same size, measured in the same run. The last
 row at 348×128 (a CPU fit's size) is what the renderers feed: one Adam step of the paper's CNN on the same core.
-Run: PYTHONPATH=. python benchmarks/bench_render.py [--batch 16] [--repeat 3]
+Run: python benchmarks/bench_render.py [--batch 16] [--repeat 3]
 """
 from __future__ import annotations
 
@@ -17,10 +17,10 @@ import cv2
 import numpy as np
 import torch
 
+from appdgen.calib.defaults import default_calibration
 from appdgen.geometry.crop import valid_region
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
-from benchmarks.bench_geometry import KITTI_02
 from train.fit import train_step
 from train.model import AppdNet, ModelConfig
 from train.warp import maps_batch, rectify_batch, remap_batch
@@ -47,7 +47,7 @@ def main() -> None:
     args = parser.parse_args()
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
-    calib, n, cpu = KITTI_02, args.batch, torch.device("cpu")
+    calib, n, cpu = default_calibration("02"), args.batch, torch.device("cpu")
     sampler = Sampler(calib)
     calibs = [sampler.draw(0, i).calib for i in range(n)]
     crops = [valid_region(c) for c in calibs]

@@ -5,7 +5,9 @@ A model module defines
 * ``NAME``: the model's name as appdgen spells it (``radtan``, ``rational``, ``kb4``, ``ds``, ``eucm``);
 * ``PARAMS``: its coefficient names, in the order files and ``coeffs`` tuples use;
 * ``project(x, y, coeffs)``: undistorted normalized coordinates (x = X/Z, y = Y/Z) → distorted normalized
-  coordinates (m_x, m_y), so that the raw pixel is (fx·m_x + cx, fy·m_y + cy);
+  coordinates (m_x, m_y), so that the raw pixel is (fx·m_x + cx, fy·m_y + cy); written against the Python array
+  API (numerics.namespace), so numpy arrays and torch tensors run the same equations, and coefficients may be
+  arrays broadcasting against x, y (one calibration per batch row: appdgen.geometry.maps.raw_positions_batch);
 * ``jacobian(x, y, coeffs)``: (∂m_x/∂x, ∂m_x/∂y, ∂m_y/∂x, ∂m_y/∂y) of ``project``;
 * ``fold_radius(coeffs)``: the undistorted normalized radius below which ``project`` is one-to-one (inf when
   none is found), the model's valid domain;

@@ -2,23 +2,25 @@
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 
 from appdgen.errors import AppdgenError
-from appdgen.lens.numerics import (angle_slope, first_nonpositive, plane_of_rays, quotient_model, radius_of_angle,
-                                   scale_maps, unit_rays, within_angle)
+from appdgen.lens.numerics import (angle_slope, first_nonpositive, namespace, plane_of_rays, quotient_model,
+                                   radius_of_angle, scale_maps, unit_rays, within_angle)
 
 NAME = "ds"
 PARAMS: tuple[str, ...] = ("xi", "alpha")
 
 
-def _denominator(q: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """α d2 + (1 − α)(ξ d1 + 1) at q = x² + y² (z = 1), and its derivative in q."""
+def _denominator(q: Any, coeffs: tuple[Any, ...]) -> tuple[Any, Any]:
+    """α d2 + (1 − α)(ξ d1 + 1) at q = x² + y² (z = 1), and its derivative in q (any array namespace)."""
     xi, alpha = coeffs
-    d1 = np.sqrt(q + 1.0)
+    xp = namespace(q)
+    d1 = xp.sqrt(q + 1.0)
     zz = xi * d1 + 1.0
-    d2 = np.sqrt(q + zz * zz)
+    d2 = xp.sqrt(q + zz * zz)
     dzz = 0.5 * xi / d1
     dd2 = (0.5 + zz * dzz) / d2
     return alpha * d2 + (1.0 - alpha) * zz, alpha * dd2 + (1.0 - alpha) * dzz

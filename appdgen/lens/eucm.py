@@ -2,21 +2,22 @@
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 
 from appdgen.errors import AppdgenError
-from appdgen.lens.numerics import (angle_slope, first_nonpositive, plane_of_rays, quotient_model, radius_of_angle,
-                                   scale_maps, unit_rays, within_angle)
+from appdgen.lens.numerics import (angle_slope, first_nonpositive, namespace, plane_of_rays, quotient_model,
+                                   radius_of_angle, scale_maps, unit_rays, within_angle)
 
 NAME = "eucm"
 PARAMS: tuple[str, ...] = ("alpha", "beta")
 
 
-def _denominator(q: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """α ρ + 1 − α at q = x² + y² (z = 1), and its derivative in q."""
+def _denominator(q: Any, coeffs: tuple[Any, ...]) -> tuple[Any, Any]:
+    """α ρ + 1 − α at q = x² + y² (z = 1), and its derivative in q (any array namespace)."""
     alpha, beta = coeffs
-    rho = np.sqrt(beta * q + 1.0)
+    rho = namespace(q).sqrt(beta * q + 1.0)
     return alpha * rho + (1.0 - alpha), 0.5 * alpha * beta / rho
 
 

@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 
-from appdgen.lens.numerics import (angle_rays, first_nonpositive, plane_of_rays, radial_project, radius_of_angle,
-                                   scale_jacobian, scale_maps)
+from appdgen.lens.numerics import (angle_rays, first_nonpositive, namespace, plane_of_rays, radial_project,
+                                   radius_of_angle, scale_jacobian, scale_maps)
 
 NAME = "kb4"
 PARAMS: tuple[str, ...] = ("k1", "k2", "k3", "k4")
@@ -14,8 +15,8 @@ PARAMS: tuple[str, ...] = ("k1", "k2", "k3", "k4")
 _TINY = 1e-20
 
 
-def _theta_d(theta: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
-    """Distorted angle θd(θ) (radians)."""
+def _theta_d(theta: Any, coeffs: tuple[Any, ...]) -> Any:
+    """Distorted angle θd(θ) (radians; any array namespace)."""
     k1, k2, k3, k4 = coeffs
     t2 = theta * theta
     return theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
@@ -28,15 +29,17 @@ def _slope(theta: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
     return 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
 
 
-def _scale(q: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
-    """m / (x, y) = θd(atan r)/r at q = r² (1 on the axis)."""
-    r = np.sqrt(q)
-    with np.errstate(all="ignore"):
-        return np.where(q > _TINY, _theta_d(np.arctan(r), coeffs) / r, 1.0)
+def _scale(q: Any, coeffs: tuple[Any, ...]) -> Any:
+    """m / (x, y) = θd(atan r)/r at q = r² (1 on the axis; any array namespace)."""
+    xp = namespace(q)
+    r = xp.sqrt(q)
+    with np.errstate(all="ignore"):  # 0/0 on the axis, where the other branch is taken
+        return xp.where(q > _TINY, _theta_d(xp.atan(r), coeffs) / r, 1.0)
 
 
-def project(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates."""
+def project(x: Any, y: Any, coeffs: tuple[Any, ...]) -> tuple[Any, Any]:
+    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates (any array namespace;
+    coefficients may be arrays that broadcast against x, y)."""
     return radial_project(x, y, lambda q: _scale(q, coeffs))
 
 

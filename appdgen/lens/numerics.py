@@ -1,11 +1,15 @@
 """Numerical pieces the lens models share: sign-change scans, Newton in the plane, radial-scale Jacobians, numpy maps.
 
 Not a model (it is not in the registry): model modules import it so that each model file holds only its equations.
+The forward projections (each model's ``project`` and what it calls) are written against the Python array API, so
+the same equations run on numpy arrays and on torch tensors (appdgen.geometry.maps.raw_positions); ``namespace``
+and ``plane_arrays`` pick the namespace. Scalar pieces (scans, Newton, the crop's solves) stay numpy.
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable
 
+import array_api_compat
 import numpy as np
 
 #: Newton in the plane stops once every point's distorted residual is below this (normalized units, ≈1e-7 px).
@@ -13,6 +17,26 @@ TOLERANCE = 1e-10
 #: Nodes of the scans for where a model stops being one-to-one.
 SCAN_NODES = 4097
 HALF_PI = 0.5 * np.pi
+#: Inputs that are numpy's (or become numpy arrays): the projections convert them to float64, as they always did.
+_NUMPY_INPUTS = (np.ndarray, np.generic, float, int, list, tuple)
+_NUMPY = array_api_compat.array_namespace(np.empty(0))
+
+
+def namespace(*arrays: Any) -> Any:
+    """The array-API namespace of `arrays` (array_api_compat's numpy for numpy arrays, scalars and lists)."""
+    for a in arrays:  # a loop, not all(…): the crop's hot loop asks ~30 times per draw
+        if not isinstance(a, _NUMPY_INPUTS):
+            return array_api_compat.array_namespace(*arrays)
+    return _NUMPY
+
+
+def plane_arrays(x: Any, y: Any) -> tuple[Any, Any, Any]:
+    """(xp, x, y): the namespace of plane points and the points in it; numpy inputs become float64 arrays, other
+    arrays (torch tensors) keep their dtype and device."""
+    xp = namespace(x, y)
+    if xp is _NUMPY:
+        return xp, np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    return xp, x, y
 
 
 def first_nonpositive(slope: Callable[[float], float], hi: float, nodes: int = SCAN_NODES) -> float:
@@ -131,9 +155,9 @@ def angle_of_rays(Z: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(Z, -1.0, 1.0))
 
 
-def radial_project(x: np.ndarray, y: np.ndarray, scale: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, ...]:
-    """m = scale(q)·(x, y), q = x² + y²: the projection of every radially symmetric model."""
-    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+def radial_project(x: Any, y: Any, scale: Callable[[Any], Any]) -> tuple[Any, Any]:
+    """m = scale(q)·(x, y), q = x² + y²: the projection of every radially symmetric model (any array namespace)."""
+    _, x, y = plane_arrays(x, y)
     s = scale(x * x + y * y)
     return s * x, s * y
 
@@ -149,12 +173,12 @@ def quotient_jacobian(x: np.ndarray, y: np.ndarray,
 def quotient_model(denominator: Callable) -> tuple[Callable, Callable, Callable]:
     """(scale, project, jacobian) of a unified model m = (x, y)/den(q, coeffs), q = x² + y² (DS, EUCM), from its
     den(q, coeffs) → (den, dden/dq): each such model states only its denominator."""
-    def scale(q: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
-        """m / (x, y) at q = r²."""
+    def scale(q: Any, coeffs: tuple[Any, ...]) -> Any:
+        """m / (x, y) at q = r² (any namespace)."""
         return 1.0 / denominator(q, coeffs)[0]
 
-    def project(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-        """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates."""
+    def project(x: Any, y: Any, coeffs: tuple[Any, ...]) -> tuple[Any, Any]:
+        """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates (any namespace)."""
         return radial_project(x, y, lambda q: scale(q, coeffs))
 
     def jacobian(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, ...]:
@@ -174,3 +198,4 @@ def within_angle(rays: tuple[np.ndarray, np.ndarray, np.ndarray], limit: float) 
     with np.errstate(invalid="ignore"):
         ok = angle_of_rays(rays[2]) < limit
     return tuple(np.where(ok, c, np.nan) for c in rays)
+

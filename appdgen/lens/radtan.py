@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import cv2
 import numpy as np
 
-from appdgen.lens.numerics import first_nonpositive, plane_rays
+from appdgen.lens.numerics import first_nonpositive, plane_arrays, plane_rays
 
 NAME = "radtan"
 PARAMS: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3")
@@ -14,10 +15,11 @@ PARAMS: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3")
 R_MAX = 10.0
 
 
-def project(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates."""
+def project(x: Any, y: Any, coeffs: tuple[Any, ...]) -> tuple[Any, Any]:
+    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates (any array namespace;
+    coefficients may be arrays that broadcast against x, y: one calibration per batch row)."""
     k1, k2, p1, p2, k3 = coeffs
-    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    _, x, y = plane_arrays(x, y)
     r2 = x * x + y * y
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     xy = x * y

@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import cv2
 import numpy as np
 
-from appdgen.lens.numerics import first_nonpositive, plane_rays
+from appdgen.lens.numerics import first_nonpositive, plane_arrays, plane_rays
 from appdgen.lens.radtan import plane_guess  # noqa: F401  (the same start: the distorted point)
 
 NAME = "rational"
@@ -15,18 +16,20 @@ PARAMS: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1",
 R_MAX = 10.0
 
 
-def _radial(q: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Radial factor (1 + k1q + k2q² + k3q³)/(1 + k4q + k5q² + k6q³) at q = r², and its derivative in q."""
+def _radial(q: Any, coeffs: tuple[Any, ...]) -> tuple[Any, Any]:
+    """Radial factor (1 + k1q + k2q² + k3q³)/(1 + k4q + k5q² + k6q³) at q = r², and its derivative in q (any
+    array namespace)."""
     k1, k2, _, _, k3, k4, k5, k6 = coeffs[:8]
     num, den = 1.0 + q * (k1 + q * (k2 + q * k3)), 1.0 + q * (k4 + q * (k5 + q * k6))
     dnum, dden = k1 + q * (2.0 * k2 + 3.0 * k3 * q), k4 + q * (2.0 * k5 + 3.0 * k6 * q)
     return num / den, (dnum * den - num * dden) / (den * den)
 
 
-def project(x: np.ndarray, y: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates."""
+def project(x: Any, y: Any, coeffs: tuple[Any, ...]) -> tuple[Any, Any]:
+    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates (any array namespace;
+    coefficients may be arrays that broadcast against x, y)."""
     p1, p2, s1, s2, s3, s4 = coeffs[2], coeffs[3], *coeffs[8:]
-    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    _, x, y = plane_arrays(x, y)
     r2 = x * x + y * y
     radial, _ = _radial(r2, coeffs)
     xy = x * y

@@ -72,7 +72,7 @@ def build_rate(raw_dir: Path, out: Path, samples: int, size: tuple[int, int], jo
     return samples / wall, samples / (time.process_time() - cpu), split
 
 
-def check_seconds(size: tuple[int, int]) -> tuple[float, float]:
+def reachability_seconds(size: tuple[int, int]) -> tuple[float, float]:
     """Seconds of the reachability check a build runs before --out is touched, and of the full search for the
     largest APPD it runs when no quick ray reaches --appd-max (best of 3 each, sampler set-up included)."""
     quick = full = float("inf")
@@ -169,7 +169,7 @@ def main() -> None:
         print("  the rest, ms/sample: " + ", ".join(f"{k} {1000 * v / args.samples:.1f}" for k, v in split.items()
                                                    if k not in ("decode", "remap", "encode")))
         print(f"build --jobs 2             {two:7.1f} samples/s  ({two / one:.2f} x jobs 1; target >= 1.7)")
-        quick, full = check_seconds(size)
+        quick, full = reachability_seconds(size)
         print(f"reachability check         {quick:7.3f} s          (before --out is touched; {full:.3f} s when it "
               f"has to search for the largest APPD)")
         if args.rss:

@@ -69,8 +69,8 @@ def verify(out: Path) -> Report:
         return report
     shards = list(counts(table["shard"]))
     report.shards = len(shards)
-    _check_index(table, info, report)
-    _check_info(out, table, info, report)
+    _verify_index(table, info, report)
+    _verify_info(out, table, info, report)
     for name in shards:
         try:
             path = shard_path(out, name)
@@ -78,14 +78,14 @@ def verify(out: Path) -> Report:
             report.add(INDEX, str(error).partition(": ")[2])
             continue
         rows = table.filter(pc.equal(table["shard"], name)).sort_by("sample_index").to_pylist()
-        _check_shard(path, rows, ext, report)
+        _verify_shard(path, rows, ext, report)
     for path in sorted(out.glob(SHARD_GLOB)):
         if path.name not in shards:
             report.add(path.name, f"shard file not named in {INDEX}")
     return report
 
 
-def _check_index(table: pa.Table, info: dict, report: Report) -> None:
+def _verify_index(table: pa.Table, info: dict, report: Report) -> None:
     """labels.parquet on its own: unique keys, key = sample index, indices 0…N−1, shard = index ÷ shard size."""
     shard_size = info.get("shard_size") or 1
     indices = table["sample_index"].to_pylist()
@@ -101,7 +101,7 @@ def _check_index(table: pa.Table, info: dict, report: Report) -> None:
         report.add(INDEX, f"sample indices are not 0…{len(indices) - 1}")
 
 
-def _check_info(out: Path, table: pa.Table, info: dict, report: Report) -> None:
+def _verify_info(out: Path, table: pa.Table, info: dict, report: Report) -> None:
     """build.json's counts and shard list against the index and the files."""
     stated, listed = info["counts"], {s.get("file"): s for s in info.get("shards", []) if isinstance(s, dict)}
     shard_rows = counts(table["shard"])
@@ -124,7 +124,7 @@ def _check_info(out: Path, table: pa.Table, info: dict, report: Report) -> None:
             report.add(BUILD_JSON, f"{name}: {stats.get('bytes')} bytes, the file has {path.stat().st_size}")
 
 
-def _check_shard(path: Path, rows: list[dict], ext: str, report: Report) -> None:
+def _verify_shard(path: Path, rows: list[dict], ext: str, report: Report) -> None:
     """One shard against its index rows: names, order, types, bytes of every member, and the tar's end."""
     if not path.is_file():
         report.add(path.name, f"missing ({len(rows)} samples of {INDEX} are in it)")
@@ -134,10 +134,10 @@ def _check_shard(path: Path, rows: list[dict], ext: str, report: Report) -> None
     try:
         with path.open("rb") as raw, tarfile.open(fileobj=raw, mode="r:") as tar:
             end = _scan_members(path, raw, tar, expected, seen, report)
-            _check_end(path, raw, end, seen, report)
+            _verify_end(path, raw, end, seen, report)
     except (OSError, tarfile.TarError) as exc:
         report.add(f"{path.name}: {_next_name(expected, seen)}", f"unreadable tar ({exc})")
-    _check_found(path, expected, seen, report)
+    _verify_found(path, expected, seen, report)
 
 
 def _scan_members(path: Path, raw: BinaryIO, tar: tarfile.TarFile, expected: dict[str, dict],
@@ -211,7 +211,7 @@ def _content_problem(name: str, data: bytes, row: dict) -> str | None:
     return None if data == record_json(row) else f"bytes differ from its {INDEX} row written as JSON"
 
 
-def _check_end(path: Path, raw: BinaryIO, end: int, seen: dict[str, None], report: Report) -> None:
+def _verify_end(path: Path, raw: BinaryIO, end: int, seen: dict[str, None], report: Report) -> None:
     """After the last member: two zero blocks, zero padding to a whole record, nothing else."""
     if end < 0:
         return
@@ -232,7 +232,7 @@ def _check_end(path: Path, raw: BinaryIO, end: int, seen: dict[str, None], repor
         report.add(where, f"{size} bytes is not a whole number of {RECORD}-byte tar records (truncated?)")
 
 
-def _check_found(path: Path, expected: dict[str, dict], seen: dict[str, None], report: Report) -> None:
+def _verify_found(path: Path, expected: dict[str, dict], seen: dict[str, None], report: Report) -> None:
     """Every expected member found, in index order (key.json, then the image, per sample)."""
     missing = [name for name in expected if name not in seen]
     for name in missing[:3]:

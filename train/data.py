@@ -106,13 +106,16 @@ class _AllSplits(dict):
 
 
 def read_labels(root: Path) -> dict[str, list] | None:
-    """Columns key, split, raw_path, appd_pct of OUT/labels.parquet, or None when absent."""
+    """Columns key, split, raw_path, appd_pct (and source, for a build from recordings) of OUT/labels.parquet, or
+    None when absent."""
     path = root / "labels.parquet"
     if not path.is_file():
         return None
     import pyarrow.parquet as pq
 
-    cols = pq.read_table(path, columns=["key", "split", "raw_path", "appd_pct"]).to_pydict()
+    names = pq.read_schema(path).names
+    cols = pq.read_table(path, columns=["key", "split", "raw_path", "appd_pct"]
+                         + (["source"] if "source" in names else [])).to_pydict()
     cols["key"] = [str(k) for k in cols["key"]]  # json keys are strings; match them whatever parquet typed
     return cols
 
@@ -128,8 +131,11 @@ _DRIVE = re.compile(KITTI_DRIVE)
 HOLDOUT_UNITS = ("recording", "image")
 
 
-def recording(raw_path: str) -> str:
-    """The recording a raw image comes from: the KITTI drive its path names, else its folder."""
+def recording(raw_path: str, source: str | None = None) -> str:
+    """The recording a raw image comes from: the bag or video it is a frame of (labels' `source`), else the KITTI
+    drive its path names, else its folder."""
+    if source:
+        return source
     drive = _DRIVE.search(raw_path)
     return drive.group(0) if drive else posixpath.dirname(raw_path.replace("\\", "/"))
 
@@ -161,7 +167,7 @@ class Selection:
         key = str(meta.get("key", ""))
         ident = str(meta.get("raw_path") or (self.raw_paths or {}).get(key) or key)
         if self.by == "recording":
-            ident = recording(ident)
+            ident = recording(ident, meta.get("source"))
             if self.held is not None:
                 return (ident in self.held) == (self.side == "val")
         return in_holdout(ident, self.holdout) == (self.side == "val")
@@ -177,8 +183,8 @@ def count_selected(labels: Mapping[str, list] | None, sel: Selection) -> int | N
     """Samples a selection yields, from labels.parquet; None when unknown."""
     if labels is None:
         return None
-    rows = zip(labels["key"], labels["split"], labels["raw_path"])
-    return sum(sel.accepts({"key": k, "split": s, "raw_path": r}) for k, s, r in rows)
+    rows = zip(labels["key"], labels["split"], labels["raw_path"], labels.get("source") or [None] * len(labels["key"]))
+    return sum(sel.accepts({"key": k, "split": s, "raw_path": r, "source": o}) for k, s, r, o in rows)
 
 
 def decode_image(data: bytes, ext: str, where: str) -> np.ndarray:

@@ -102,7 +102,8 @@ def holdout_unit(labels: dict | None, opts: FitOptions) -> tuple[str, frozenset[
         raise TrainError(f"--val-by must be one of {', '.join(HOLDOUT_UNITS)}, got {opts.val_by!r}")
     if opts.val_by == "image" or labels is None:
         return opts.val_by, None
-    found = {recording(str(r)) for s, r in zip(labels["split"], labels["raw_path"]) if s == opts.split}
+    sources = labels.get("source") or [None] * len(labels["split"])
+    found = {recording(str(r), o) for s, r, o in zip(labels["split"], labels["raw_path"], sources) if s == opts.split}
     if len(found) < 2:
         print(f"fit: split {opts.split!r} is one recording ({next(iter(found), '?')!r}); holding out by image",
               file=sys.stderr)

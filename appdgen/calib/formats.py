@@ -139,6 +139,17 @@ def list_cameras(path: PathLike) -> list[str]:
         return list(_recognise(path).cameras)
 
 
+def calibration_topic(path: PathLike, camera: str | int | None = None) -> str | None:
+    """The ROS image topic a Kalibr camchain names for a camera (its ``rostopic``), None for files without one."""
+    with _about(str(path)):
+        found = _recognise(path)
+        reader = found.cameras[_select(list(found.cameras), camera)]
+    # Kalibr (and EuRoC sensor.yaml) readers hold their camera's block: the rostopic sits beside the intrinsics.
+    block = reader.args[0] if isinstance(reader, partial) and reader.func is _kalibr_parts else None
+    topic = block.get("rostopic") if isinstance(block, dict) else None
+    return topic if isinstance(topic, str) and topic else None
+
+
 def native_suffix(calib: Calibration) -> str:
     """The extension to save calib under: .yaml where OpenCV YAML holds its model (radtan, rational, kb4), else .json."""
     return ".yaml" if calib.model in _YAML_MODELS else ".json"

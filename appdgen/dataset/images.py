@@ -11,11 +11,12 @@ from appdgen.util.atomic import write_file
 from appdgen.errors import AppdgenError
 
 
-def read_image(path: Path) -> np.ndarray:
-    """An 8-bit BGR image (H×W×3) from a file; AppdgenError naming the file when unreadable."""
+def read_image(path: Path, channels: int = 3) -> np.ndarray:
+    """An 8-bit BGR image (H×W×3), or grey (H×W) for channels 1, from a file; AppdgenError naming the file when
+    unreadable."""
     if not path.is_file():
         raise AppdgenError(f"{path}: no such image file")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE if channels == 1 else cv2.IMREAD_COLOR)
     if image is None:
         raise AppdgenError(f"{path}: not a readable image")
     return image

@@ -77,7 +77,7 @@ def model_params(info: dict) -> tuple[str, ...]:
 
 def read_index(out: Path, info: dict) -> pa.Table:
     """labels.parquet with the label schema of build.json's lens model; AppdgenError naming the file otherwise."""
-    schema = label_schema(model_params(info))
+    schema = label_schema(model_params(info), sources=bool(info.get("recordings_sha256")))
     try:
         table = pq.read_table(out / INDEX)
     except (OSError, pa.ArrowException) as exc:

@@ -43,10 +43,11 @@ class TarShard:
         self._stack.__exit__(*exc_info)
 
 
-def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: ShardStats) -> pa.Table:
-    """One shard's label rows (columns of label_schema(params)) and its stats as a Parquet file, atomically; returns
-    the table written (the index can take it from memory)."""
-    schema = label_schema(params)
+def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: ShardStats,
+                   sources: bool = False) -> pa.Table:
+    """One shard's label rows (columns of label_schema(params, sources)) and its stats as a Parquet file,
+    atomically; returns the table written (the index can take it from memory)."""
+    schema = label_schema(params, sources)
     columns = [pa.array([r[n] for r in rows], f.type) for n, f in zip(schema.names, schema)]
     table = pa.Table.from_arrays(columns, schema=schema.with_metadata({STATS_KEY: stats.to_json()}))
     _write_table(path, table)
@@ -64,10 +65,10 @@ def read_fragment(path: Path, schema: pa.Schema) -> pa.Table:
     return pq.read_table(path, schema=schema)
 
 
-def write_index(path: Path, fragments: list[Path | pa.Table], params: Sequence[str]) -> int:
+def write_index(path: Path, fragments: list[Path | pa.Table], params: Sequence[str], sources: bool = False) -> int:
     """Concatenate shard fragments (files, or tables write_fragment returned) in order into labels.parquet,
     atomically; returns the row count."""
-    schema = label_schema(params)
+    schema = label_schema(params, sources)
     tables = [f.cast(schema) if isinstance(f, pa.Table) else read_fragment(f, schema) for f in fragments]
     table = pa.concat_tables(tables) if tables else schema.empty_table()
     _write_table(path, table)

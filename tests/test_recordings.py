@@ -153,6 +153,7 @@ def test_split_by_recording_and_the_trainers_holdout(inputs: Path, tmp_path: Pat
     table = pq.read_table(out / "labels.parquet").to_pydict()
     assert sorted(set(table["split"])) == ["a.bag", "b.bag", "c.mp4"]
     assert sorted(set(table["source"])) == ["a.bag", "b.bag", "c.mp4"]
+    pytest.importorskip("torch")  # the trainer's holdout keeps each recording whole
     from train.data import recording
 
     assert {recording(r, s) for r, s in zip(table["raw_path"], table["source"])} == {"a.bag", "b.bag", "c.mp4"}

@@ -188,14 +188,16 @@ def count_selected(labels: Mapping[str, list] | None, sel: Selection) -> int | N
 
 
 def decode_image(data: bytes, ext: str, where: str) -> np.ndarray:
-    """H×W×3 uint8 image from PNG/JPEG bytes (OpenCV BGR order) or .npy bytes (taken as stored)."""
+    """H×W×C uint8 image as stored (C 3: OpenCV BGR order, 1: grey) from PNG/JPEG bytes or .npy bytes."""
     if ext == "npy":
         arr = np.load(io.BytesIO(data), allow_pickle=False)
     else:
-        arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    if arr is None or arr.dtype != np.uint8 or arr.ndim != 3 or arr.shape[2] != 3:
+        arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if arr is not None and arr.ndim == 2:  # a grey sample (a build with channels 1)
+        arr = arr[:, :, None]
+    if arr is None or arr.dtype != np.uint8 or arr.ndim != 3 or arr.shape[2] not in (1, 3):
         got = "undecodable" if arr is None else f"{arr.dtype} {arr.shape}"
-        raise TrainError(f"{where}: expected a 3-channel 8-bit image, got {got}")
+        raise TrainError(f"{where}: expected a 3-channel or grey 8-bit image, got {got}")
     return arr
 
 
@@ -366,19 +368,19 @@ def channel_stats(spec: StreamSpec, n: int, n_total: int | None
     # A 'world' of `stride` ranks in sample mode picks every stride-th sample: spread, not the first n.
     sub = StreamSpec(spec.shards, spec.selection, spec.size, world=stride, force_sample_mode=True, limit=n)
     image_sum: np.ndarray | None = None
-    total_sq = np.zeros(3)
+    total_sq: np.ndarray | float = 0.0
     count = 0
     labels: list[float] = []
     for sample in ShardStream(sub):
         img = sample["image"].numpy().astype(np.float64) / 255.0
         image_sum = img if image_sum is None else image_sum + img
-        total_sq += (img**2).reshape(3, -1).sum(1)
+        total_sq = total_sq + (img**2).reshape(img.shape[0], -1).sum(1)
         count += 1
         labels.append(float(sample["label"]))
     if image_sum is None:
         raise TrainError(f"no samples for {spec.selection.describe()} in {len(spec.shards)} shard(s)")
     mean_image = image_sum / count
     pixels = count * mean_image[0].size
-    mean = mean_image.reshape(3, -1).mean(1)
+    mean = mean_image.reshape(mean_image.shape[0], -1).mean(1)
     std = np.sqrt(np.maximum(total_sq / pixels - mean**2, 1e-12))
     return mean.tolist(), np.maximum(std, 1e-3).tolist(), labels, mean_image.astype(np.float32)

@@ -151,7 +151,9 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
     mean, std, sub_labels, mean_image = channel_stats(spec, opts.stats_samples, plan.n_train)
     label_mean = _train_label_mean(labels, plan.train) if labels else sum(sub_labels) / len(sub_labels)
     torch.manual_seed(opts.seed)
-    model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), normalize=opts.normalize))
+    channels = "grey" if len(mean) == 1 else "bgr"  # the build's samples: 1 channel from a mono source
+    model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), channels=channels,
+                                normalize=opts.normalize))
     if opts.normalize == "pixel":
         with torch.no_grad():
             model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])

@@ -140,7 +140,9 @@ def decode_message(message, msgtype: str, where: str) -> np.ndarray:
 def read_frames(path: Path, topic: str, first: Frame, last: Frame) -> Iterator[tuple[tuple, Callable]]:
     """See recordings.read_frames: one ranged read of the bag (rosbags seeks by its index)."""
     with open_bag(path) as reader, _reading(path):
-        for connection, timestamp, repeat, raw in _messages(reader, topic, first.timestamp_ns, last.timestamp_ns + 1):
+        start = first.timestamp_ns if first is not None else None
+        stop = last.timestamp_ns + 1 if last is not None else None
+        for connection, timestamp, repeat, raw in _messages(reader, topic, start, stop):
             where = f"{path}: topic {topic} at {timestamp} ns"
             yield (timestamp, repeat, None), functools.partial(_decoded, reader, connection.msgtype, raw, where)
 

@@ -6,9 +6,10 @@ its shard's frames, in one pass over their time range (FrameReader), never the w
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -19,7 +20,8 @@ VIDEO_SUFFIXES = (".mp4", ".mkv", ".avi", ".mov", ".webm", ".m4v", ".mpg", ".mpe
 ROS2_METADATA = "metadata.yaml"  # a ROS 2 bag folder holds it beside its .db3/.mcap files
 #: --channels choices: auto follows the source (1 when every image is grey), else 1 (grey) or 3 (BGR).
 CHANNELS = ("auto", "1", "3")
-_HASH_BLOCK = 1 << 22  # bytes hashed at a time (a recording may be larger than memory)
+_HASH_BLOCK = 1 << 22
+T = TypeVar("T")  # bytes hashed at a time (a recording may be larger than memory)
 
 
 @dataclass(frozen=True)
@@ -74,18 +76,25 @@ class FrameChoice:
 
     def apply(self, frames: list[Frame]) -> list[Frame]:
         """The kept frames, in order: the window first, then every Nth of it, then the minimum interval."""
-        if not frames:
-            return []
-        first = frames[0].timestamp_ns
-        lo = first + round(self.start * 1e9) if self.start is not None else None
-        hi = first + round(self.end * 1e9) if self.end is not None else None
-        window = [f for f in frames if (lo is None or f.timestamp_ns >= lo) and (hi is None or f.timestamp_ns < hi)]
-        kept: list[Frame] = []
+        return [frame for frame, _ in self.select((f, None) for f in frames)]
+
+    def select(self, items: Iterable[tuple[Frame, T]]) -> Iterator[tuple[Frame, T]]:
+        """The kept (frame, anything) pairs of a stream in time order, as apply; stops reading at --end."""
+        first = last = None
+        position = 0
         gap = round(self.min_interval * 1e9)
-        for frame in window[::self.every]:
-            if not kept or frame.timestamp_ns - kept[-1].timestamp_ns >= gap:
-                kept.append(frame)
-        return kept
+        for item in items:
+            time = item[0].timestamp_ns
+            first = time if first is None else first
+            if self.end is not None and time >= first + round(self.end * 1e9):
+                return
+            if self.start is not None and time < first + round(self.start * 1e9):
+                continue
+            position += 1
+            if (position - 1) % self.every or (last is not None and time - last < gap):
+                continue
+            last = time
+            yield item
 
 
 def to_8bit(image: np.ndarray) -> np.ndarray:
@@ -195,10 +204,20 @@ def index(path: Path, source: str, topic: str, size: tuple[int, int] | None, ski
     return _module(path).index(path, source, topic, size, skip_bad)
 
 
-def read_frames(path: Path, topic: str, first: Frame, last: Frame) -> Iterator[tuple[tuple, Callable[[], np.ndarray]]]:
-    """(identity, decode) of each frame from `first` to `last` in stream order: identity as _identity, decode
-    gives the 8-bit image (grey H×W or BGR H×W×3) when called (frames a shard skips are never decoded)."""
+def read_frames(path: Path, topic: str, first: Frame | None, last: Frame | None
+                ) -> Iterator[tuple[tuple, Callable[[], np.ndarray]]]:
+    """(identity, decode) of each frame from `first` to `last` (None: the recording's first, last) in stream
+    order: identity as _identity, decode gives the 8-bit image (grey H×W or BGR H×W×3) when called (frames a
+    shard skips are never decoded)."""
     return _module(path).read_frames(path, topic, first, last)
+
+
+def stream(path: Path, topic: str, choice: FrameChoice) -> Iterator[tuple[Frame, Callable[[], np.ndarray]]]:
+    """The chosen frames of one topic (video: of the video) and their decoders, in one pass, nothing indexed
+    first (memory flat over an hour-long recording: predict)."""
+    numbered = ((Frame(path, path.as_posix(), topic, ident[0], number, ident[1], ident[2]), decode)
+                for number, (ident, decode) in enumerate(read_frames(path, topic, None, None)))
+    return choice.select(numbered)
 
 
 def _identity(frame: Frame) -> tuple:

@@ -70,15 +70,16 @@ def read_frames(path: Path, topic: str, first: Frame, last: Frame) -> Iterator[t
     with open_video(path) as (container, stream):
         mono = (stream.codec_context.pix_fmt or "").startswith("gray")
         try:
-            container.seek(first.pts, stream=stream, backward=True, any_frame=False)
+            if first is not None:
+                container.seek(first.pts, stream=stream, backward=True, any_frame=False)
             for frame in container.decode(stream):
-                if frame.pts is None or frame.pts < first.pts:
+                if frame.pts is None or (first is not None and frame.pts < first.pts):
                     continue
-                if frame.pts > last.pts:
+                if last is not None and frame.pts > last.pts:
                     return
                 yield (_ns(frame.pts, stream.time_base), 0, frame.pts), _converter(frame, mono)
         except av.FFmpegError as exc:
-            raise AppdgenError(f"{path}: cannot decode video after frame pts {first.pts} ({exc})") from None
+            raise AppdgenError(f"{path}: cannot decode the video ({exc})") from None
 
 
 def _converter(frame, mono: bool) -> Callable:

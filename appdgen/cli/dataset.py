@@ -22,6 +22,7 @@ from appdgen.dataset.layout import FORMATS
 from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
 from appdgen.dataset.sources import SPLIT_BY
 from appdgen.dataset.recordings import CHANNELS
+from appdgen.synth.recording import KINDS as RECORDING_KINDS
 
 
 def recording_options(command):
@@ -79,7 +80,7 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
 @click.option("--per-image", type=int, default=None, help="Samples per raw image (instead of --samples).")
 @size_option
 @click.option("--format", "image_format", default="png", type=click.Choice(list(FORMATS)), show_default=True,
-              help="Image encoding in the shards (png: compression level 1; npy: uint8 HxWx3 BGR).")
+              help="Image encoding in the shards (png: compression level 1; npy: uint8 HxWx3 BGR, HxW grey).")
 @click.option("--shard-size", type=int, default=None,
               help="Samples per shard [default: from --samples alone, about 64 shards of 8 to 1000 samples].")
 @click.option("--jobs", type=int, default=None,
@@ -181,9 +182,14 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
 @click.option("--jobs", type=int, default=None,
               help="Worker processes, as build's --jobs (-1 all cores, -2 all but one, …) [default: all cores]; any "
                    "N, same bytes.")
+@click.option("--as", "kind", default="png", type=click.Choice(["png", *RECORDING_KINDS]), show_default=True,
+              help="Write the frames as PNGs, or as a robot's recording: a ROS 1 bag (recording.bag), a ROS 2 bag "
+                   "folder with mcap or sqlite3 storage (recording/), or an mp4 video (recording.mp4); bags hold "
+                   "sensor_msgs/Image on /cam0/image_raw at 10 Hz.")
+@click.option("--mono", is_flag=True, help="Grey frames (mono8 in a bag), as a monochrome camera's.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
-def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
+def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, kind, mono, quiet):
     """Render procedural street frames as the (scaled) camera sees them, through any lens model, plus its
     calibration (calibration.yaml; calibration.json for ds/eucm, which OpenCV YAML cannot hold)."""
     from appdgen.calib.defaults import DEFAULT_CALIB_PATH
@@ -191,6 +197,7 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
     from appdgen.util.progress import Progress
     from appdgen.util.distribute import resolve_jobs
     from appdgen.synth import MOUNTS, calibration_name, scale_calibration, synthesize
+    from appdgen.synth.recording import frames_as, recording_target
 
     if frames < 1:
         raise AppdgenError(f"--frames {frames}: must be at least 1")
@@ -199,11 +206,16 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
     calib = load_calibration(calib_path or str(DEFAULT_CALIB_PATH), camera or (None if calib_path else "02"))
     scaled = scale_calibration(calib, scale)
     out = Path(out_dir)
+    if kind != "png":
+        recording_target(out, kind)  # refused before any frame is rendered
     bar = Progress(frames, unit="frames", enabled=not quiet)
-    synthesize(calib, frames, out, seed, scale, progress=bar.advance, jobs=resolve_jobs(jobs), mount=MOUNTS[mount])
+    written = synthesize(calib, frames, out, seed, scale, progress=bar.advance, jobs=resolve_jobs(jobs),
+                         mount=MOUNTS[mount])
+    where = frames_as(written, out, kind, mono)
     name = calibration_name(scaled)
     save(scaled, out / name)
-    click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}) and {name} to {out_dir}")
+    what = "" if kind == "png" else f" as {where.name}"
+    click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}){what} and {name} to {out_dir}")
 
 
 @main.command("inspect")

@@ -89,3 +89,42 @@ def write_video(path: Path, frames: Iterable[np.ndarray], fps: int = 10, codec: 
             for packet in stream.encode():
                 container.mux(packet)
     return count
+
+
+#: Where synth --as puts the recording in its output folder, per kind (KINDS).
+RECORDING_NAMES = {"bag": "recording.bag", "mcap": "recording", "db3": "recording", "video": "recording.mp4"}
+
+
+def recording_target(out: Path, kind: str) -> Path:
+    """Where synth --as `kind` writes its recording in `out`; refused when something is there already."""
+    target = out / RECORDING_NAMES[kind]
+    if target.exists():
+        raise AppdgenError(f"{target}: exists already (synth writes a new recording)")
+    return target
+
+
+def frames_as(paths: list[Path], out: Path, kind: str, mono: bool) -> Path:
+    """synth's PNG frames rewritten as a recording of `kind` in `out` (RECORDING_NAMES), grey when mono, the PNGs
+    then removed; kind 'png' keeps the PNGs (rewritten grey when mono). Returns what the frames are now."""
+    def frames() -> Iterable[np.ndarray]:
+        for path in paths:
+            image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE if mono else cv2.IMREAD_COLOR)
+            if image is None:
+                raise AppdgenError(f"{path}: not a readable image")
+            yield image
+
+    if kind == "png":
+        if mono:
+            from appdgen.dataset.images import write_image
+
+            for path, image in zip(paths, frames()):
+                write_image(path, image)
+        return out
+    target = recording_target(out, kind)
+    if kind == "video":
+        write_video(target, frames())
+    else:
+        write_bag(target, frames(), kind=kind)
+    for path in paths:
+        path.unlink()
+    return target

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import builtins
 import json
+import time
 from pathlib import Path
 
 import cv2
@@ -11,8 +12,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from appdgen.synth.recording import START_NS, FRAME_PERIOD_NS, write_bag, write_video
-from helpers import (assert_one_line_error, assert_same_build, kitti_text, raw_image, run_cli, run_with_full_disk,
-                     shard_members, write_png)
+from helpers import (assert_one_line_error, assert_same_build, kill_group, kitti_text, raw_image, run_cli,
+                     run_with_full_disk, shard_members, spawn_cli, write_png)
 
 FRAMES = 6
 
@@ -144,6 +145,23 @@ def test_jobs_and_an_interrupted_build_give_the_same_bytes(inputs: Path, tmp_pat
     assert_same_build(tmp_path / "cut", one)
 
 
+def test_kill_9_then_resume_gives_identical_shards(inputs: Path, tmp_path: Path) -> None:
+    def args(out: Path, *extra: str) -> list[str]:  # 12 shards (a later option wins): the kill lands mid-build
+        return build_args(inputs, inputs / "jpeg", out, "--samples", "48", "--shard-size", "4", *extra, jobs=2)
+
+    reference = build(inputs, inputs / "jpeg", tmp_path / "reference", "--samples", "48", "--shard-size", "4")
+    out = tmp_path / "out"
+    process = spawn_cli(args(out), tmp_path / "log")
+    try:
+        while not (out / ".parts" / "shard-000000.tar.parquet").exists() and process.poll() is None:
+            time.sleep(0.005)
+    finally:
+        kill_group(process)
+    assert (out / ".parts" / "plan.json").is_file(), (tmp_path / "log").read_text()  # killed mid-build
+    assert run_cli(args(out, "--resume")).exit_code == 0
+    assert_same_build(out, reference)
+
+
 def test_split_by_recording_and_the_trainers_holdout(inputs: Path, tmp_path: Path) -> None:
     folder = tmp_path / "runs"
     folder.mkdir()
@@ -208,6 +226,42 @@ def test_topic_comes_from_the_calibrations_rostopic(inputs: Path, small_camera, 
     assert_one_line_error(run_cli([*args[:2], str(elsewhere), *args[3:], "--out", str(tmp_path / "w")]),
                           str(bag), "rostopic /left/image", "--topic")
     assert not any((tmp_path / name).exists() for name in ("x", "y", "z", "w"))
+
+
+@pytest.mark.parametrize("kind", ["bag", "db3", "video"])
+def test_synth_writes_its_frames_as_a_recording(kind: str, tmp_path: Path) -> None:
+    png, rec = tmp_path / "png", tmp_path / kind
+    for out, extra in ((png, []), (rec, ["--as", kind, "--mono"])):
+        result = run_cli(["synth", "--frames", "3", "--scale", "0.125", "--jobs", "1", "--quiet", "--out", str(out),
+                          *extra])
+        assert result.exit_code == 0, result.output
+    from appdgen.synth.recording import RECORDING_NAMES
+
+    target = rec / RECORDING_NAMES[kind]
+    assert sorted(p.name for p in rec.iterdir()) == sorted(["calibration.yaml", target.name])
+    from appdgen.dataset.recordings import FrameChoice, stream, topics
+
+    got = [decode() for _, decode in stream(target, topics(target)[0], FrameChoice())]
+    expected = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted(png.glob("*.png"))]
+    assert len(got) == 3
+    if kind == "video":  # lossy, and colour: grey frames through yuv420p MPEG-4 at its finest quantiser
+        assert all(g.ndim == 3 for g in got)
+        grey = [cv2.cvtColor(g, cv2.COLOR_BGR2GRAY).astype(int) for g in got]
+        errors = np.array([[np.abs(g - e).mean() for e in expected] for g in grey])
+        assert (errors.argmin(1) == np.arange(3)).all() and errors.diagonal().max() < 8  # each is its own frame
+    else:
+        assert all(np.array_equal(g, e) for g, e in zip(got, expected))
+    assert_one_line_error(run_cli(["synth", "--frames", "1", "--scale", "0.125", "--out", str(rec), "--as", kind]),
+                          "exists already")
+
+
+def test_a_folder_of_images_keeps_a_stray_video_out(inputs: Path, png_build: Path, tmp_path: Path) -> None:
+    folder = tmp_path / "png"
+    folder.mkdir()
+    for path in sorted((inputs / "png").glob("*.png")):
+        (folder / path.name).symlink_to(path)
+    (folder / "stray.mp4").symlink_to(inputs / "run.mp4")
+    assert same_images(images_of(build(inputs, folder, tmp_path / "out")), images_of(png_build))
 
 
 # --- image encodings ---------------------------------------------------------------------------------------------

@@ -125,8 +125,10 @@ def is_video(path: Path) -> bool:
 
 
 def list_recordings(spec: str) -> list[Path] | None:
-    """The recordings an --images spec names (one recording, or a folder holding only recordings, sorted), or None
-    when it names image files instead."""
+    """The recordings an --images spec names (one recording, or a folder of recordings and no image files, sorted
+    by name), or None when it names image files instead (a folder of images keeps a stray video out, as before)."""
+    from appdgen.dataset.sources import IMAGE_SUFFIXES
+
     path = Path(spec)
     if is_recording(path):
         if not path.exists():
@@ -135,7 +137,9 @@ def list_recordings(spec: str) -> list[Path] | None:
     if not path.is_dir():
         return None
     found = sorted(p for p in path.iterdir() if is_recording(p) and not p.name.startswith("."))
-    return found or None
+    if not found or any(p.suffix.lower() in IMAGE_SUFFIXES and p.is_file() for p in path.rglob("*")):
+        return None
+    return found
 
 
 def recording_hash(path: Path) -> str:

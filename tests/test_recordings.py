@@ -357,3 +357,12 @@ def test_a_missing_extra_is_named(name: str, module: str, extra: str, inputs: Pa
 
     monkeypatch.setattr(builtins, "__import__", without)
     assert_one_line_error(run_cli(build_args(inputs, inputs / name, tmp_path / "out")), f"pip install '{extra}'")
+
+
+def test_the_calibrations_topic_finds_its_compressed_twin(small_camera, tmp_path: Path) -> None:
+    from appdgen.dataset.recordings import choose_topic
+
+    bag = tmp_path / "compressed.bag"
+    write_bag(bag, [raw_image(small_camera.size, 0)], topic="/cam0/image_raw/compressed", compressed="jpeg")
+    assert choose_topic(bag, None, "/cam0/image_raw") == "/cam0/image_raw/compressed"
+    assert choose_topic(bag, None, None) == "/cam0/image_raw/compressed"

@@ -181,7 +181,8 @@ def topics(path: Path) -> list[str]:
 
 
 def choose_topic(path: Path, topic: str | None, calibrated: str | None) -> str:
-    """--topic, else the calibration's rostopic, else the only image topic; errors list the image topics."""
+    """--topic, else the calibration's rostopic (or its /compressed twin, as image_transport records it), else the
+    only image topic; errors list the image topics."""
     found = topics(path)
     if is_video(path):
         return ""
@@ -191,6 +192,8 @@ def choose_topic(path: Path, topic: str | None, calibrated: str | None) -> str:
             raise AppdgenError(f"{path}: no image topic {topic} (image topics: {listed})")
         return topic
     if calibrated is not None:
+        if calibrated not in found and f"{calibrated}/compressed" in found:  # image_transport's JPEG topic
+            return f"{calibrated}/compressed"
         if calibrated not in found:
             raise AppdgenError(f"{path}: the calibration's rostopic {calibrated} is not an image topic of the bag "
                                f"(image topics: {listed}); choose one with --topic")

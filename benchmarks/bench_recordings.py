@@ -6,7 +6,10 @@ and the ratio PNG-build time / recording-build time is printed (target >= 0.8: i
 reading each shard's frames in one pass must cost about what decoding PNGs does). The JPEG bag and the video are
 lossy, so their samples differ from the PNGs' but cost the same to make. Wall time of the whole command (process
 start, index, hash, build) from `time.perf_counter` around a subprocess.
+--predict-rss: peak RSS of `python -m train predict` over a mono bag of N and 4N frames (348x128, a 1-step
+checkpoint): flat when predict streams (nothing held per frame but the running-median window).
 Run: python benchmarks/bench_recordings.py [--frames 40] [--samples 400] [--jobs 2] [--rounds 3]
+     python benchmarks/bench_recordings.py --predict-rss [--frames 500]
 """
 from __future__ import annotations
 
@@ -44,6 +47,41 @@ def timed_build(images: Path, out: Path, samples: int, jobs: int) -> float:
     return time.perf_counter() - start
 
 
+def predict_rss(count: int) -> None:
+    """Print predict's peak RSS (MB) and time over a mono bag of `count` and 4 x `count` frames."""
+    from appdgen.synth.recording import write_bag
+
+    env = {**os.environ, "PYTHONPATH": os.getcwd()}
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        calib = root / "calib.yaml"
+        subprocess.run([sys.executable, "-m", "appdgen.cli", "synth", "--frames", "2", "--scale", "0.25", "--out",
+                        str(root / "raw"), "--quiet"], check=True, env=env)
+        calib = root / "raw" / "calibration.yaml"
+        subprocess.run([sys.executable, "-m", "appdgen.cli", "build", "--calib", str(calib), "--images",
+                        str(root / "raw"), "--channels", "1", "--samples", "8", "--out", str(root / "shards"),
+                        "--quiet"], check=True, env=env)
+        subprocess.run([sys.executable, "-m", "train", "fit", "--shards", str(root / "shards"), "--split", "all",
+                        "--val-split", "none", "--run", str(root / "run"), "--steps", "1", "--batch", "4",
+                        "--workers", "0", "--stats-samples", "8", "--quiet"], check=True, env=env,
+                       stdout=subprocess.DEVNULL)
+        size = load(calib).size
+        base = cv2.cvtColor(frames(1, size)[0], cv2.COLOR_BGR2GRAY)
+        for n in (count, 4 * count):
+            bag = root / f"run{n}.bag"
+            write_bag(bag, (np.roll(base, i, axis=1) for i in range(n)))
+            start = time.perf_counter()
+            # The child reports its own peak (RUSAGE_CHILDREN would be the largest of every child so far).
+            code = ("import resource, sys; from train.cli import main\ntry: main(sys.argv[1:])\nfinally: print("
+                    "resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)")
+            done = subprocess.run([sys.executable, "-c", code, "predict", "--ckpt", str(root / "run" / "last.pt"),
+                                   "--calib", str(calib), str(bag)], check=True, env=env, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.PIPE, text=True)
+            peak = int(done.stderr.split()[-1]) / 1024
+            print(f"predict over {n:6d} frames ({bag.stat().st_size / 1e6:6.1f} MB bag): peak RSS {peak:6.1f} MB, "
+                  f"{time.perf_counter() - start:.1f} s")
+
+
 def main() -> None:
     """Write the sources, build each over the rounds, print medians and ratios."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -51,7 +89,11 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=400)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--predict-rss", action="store_true")
     args = parser.parse_args()
+    if args.predict_rss:
+        predict_rss(args.frames)
+        return
     size = load(DEFAULT_CALIB_PATH, "02").size
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)

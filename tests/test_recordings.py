@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import builtins
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -135,14 +136,22 @@ def test_mono_bag_and_grey_pngs_give_one_channel_samples(inputs: Path, tmp_path:
     assert all(image.ndim == 2 for image in flat.values())
 
 
-def test_jobs_and_an_interrupted_build_give_the_same_bytes(inputs: Path, tmp_path: Path) -> None:
+def test_jobs_and_an_interrupted_build_give_the_same_bytes(inputs: Path, tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
     one = build(inputs, inputs / "jpeg", tmp_path / "one")
     build(inputs, inputs / "jpeg", tmp_path / "two", jobs=2)
     assert_same_build(tmp_path / "two", one)
     args = build_args(inputs, inputs / "jpeg", tmp_path / "cut")
     assert run_with_full_disk(args, 4).exit_code == 2  # the disk fills during shard 1
-    assert run_cli([*args, "--resume"]).exit_code == 0
+    monkeypatch.chdir(inputs)  # resumed from another folder, the recording named by another path
+    assert run_cli([*build_args(inputs, "jpeg", tmp_path / "cut"), "--resume"]).exit_code == 0
     assert_same_build(tmp_path / "cut", one)
+    copy, changed = tmp_path / "copy", tmp_path / "changed"
+    shutil.copytree(inputs / "jpeg", copy)
+    assert run_with_full_disk(build_args(inputs, copy, changed), 4).exit_code == 2
+    shutil.rmtree(copy)  # the same frames' timestamps, other pixels: only the recording's hash tells
+    write_bag(copy, [raw_image((174, 64), 9)] * FRAMES, kind="mcap", compressed="jpeg")
+    assert_one_line_error(run_cli([*build_args(inputs, copy, changed), "--resume"]), "used other inputs")
 
 
 def test_kill_9_then_resume_gives_identical_shards(inputs: Path, tmp_path: Path) -> None:

@@ -375,3 +375,28 @@ def test_the_calibrations_topic_finds_its_compressed_twin(small_camera, tmp_path
     write_bag(bag, [raw_image(small_camera.size, 0)], topic="/cam0/image_raw/compressed", compressed="jpeg")
     assert choose_topic(bag, None, "/cam0/image_raw") == "/cam0/image_raw/compressed"
     assert choose_topic(bag, None, None) == "/cam0/image_raw/compressed"
+
+
+def test_skip_bad_decodes_compressed_frames_and_drops_the_undecodable(inputs: Path, small_camera,
+                                                                     tmp_path: Path) -> None:
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from appdgen.synth.recording import image_message
+
+    store, msgtype = get_typestore(Stores.ROS2_HUMBLE), "sensor_msgs/msg/CompressedImage"
+    bag = tmp_path / "garbled.bag"
+    with Writer(bag) as writer:
+        connection = writer.add_connection("/cam0/image_raw", msgtype, typestore=store)
+        for i in range(3):
+            message = image_message(store, raw_image(small_camera.size, i), START_NS + i, compressed="png")
+            if i == 1:  # header and IEND intact, a byte of the compressed pixels flipped: libpng refuses it
+                message.data[len(message.data) // 2] ^= 0xFF
+            writer.write(connection, START_NS + i, store.serialize_ros1(message, msgtype))
+    out = tmp_path / "out"
+    result = run_cli(build_args(inputs, bag, out, "--skip-bad"))
+    assert result.exit_code == 0 and "1 images skipped" in result.output, result.output
+    assert sorted(set(pq.read_table(out / "labels.parquet")["frame"].to_pylist())) == [0, 2]
+    # Without --skip-bad only headers are read up front: the worker that meets the frame stops the build, naming it.
+    assert_one_line_error(run_cli(build_args(inputs, bag, tmp_path / "stopped")), str(bag), "/cam0/image_raw",
+                          f"{START_NS + 1} ns", "undecodable png", "--resume")

@@ -85,6 +85,8 @@ def index(path: Path, source: str, topic: str, size: tuple[int, int] | None, ski
             header, problem = _message_header(message, connection.msgtype)
             if problem is None and size is not None:
                 problem = _header_problem(header, size)
+            if problem is None and skip_bad and connection.msgtype == COMPRESSED:  # worth a decode only when asked
+                problem = _undecodable(message, frame.where())
             if problem is None:
                 frames.append(frame)
                 mono = header.channels == 1 if mono is None else mono
@@ -117,6 +119,16 @@ def _message_header(message, msgtype: str):
     if header is None:
         return None, f"CompressedImage format {message.format!r} is not a readable PNG or JPEG"
     return ImageHeader(header.width, header.height, 1 if header.channels == 1 else 3), problem
+
+
+def _undecodable(message, where: str) -> str | None:
+    """Why a CompressedImage does not decode, or None (--skip-bad decodes each once in the parent, so a worker
+    never meets one it would have to stop at)."""
+    try:
+        decode_message(message, COMPRESSED, where)
+    except AppdgenError as exc:
+        return str(exc).removeprefix(f"{where}: ")
+    return None
 
 
 def decode_message(message, msgtype: str, where: str) -> np.ndarray:

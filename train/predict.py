@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import torch
 
+from appdgen.dataset.images import as_channels
 from train import checkpoint, runtime
 from train.data import IMAGE_EXTS
 from train.errors import TrainError
@@ -97,14 +98,6 @@ def recording_items(path: Path, frames: Frames, calib: str | None, camera: str |
             frames.skipped.append(str(exc))
             continue
         yield frame.name, frame.timestamp_ns, partial(np.asarray, image)
-
-
-def as_channels(img: np.ndarray, channels: int) -> np.ndarray:
-    """An 8-bit image with the network's input channels (1 grey, 3 BGR): converted when the source has others."""
-    if img.ndim == 2 or img.shape[2] == 1:
-        return img.reshape(img.shape[:2]) if channels == 1 else cv2.cvtColor(img.reshape(img.shape[:2]),
-                                                                            cv2.COLOR_GRAY2BGR)
-    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if channels == 1 else img
 
 
 def read_image(path: Path) -> np.ndarray:

@@ -31,7 +31,7 @@ from appdgen.calib.calibration import Calibration
 from appdgen.geometry.crop import check_max_fov, check_output_size, valid_region
 from appdgen.util.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
-from appdgen.dataset.images import encode_image, read_image
+from appdgen.dataset.images import as_channels, encode_image, read_image
 from appdgen.dataset.layout import (BUILD_JSON, FORMATS, HASH_COLUMN, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES,
                             ShardStats, fragment_name, record_json, sample_key, shard_name)
 from appdgen.geometry.maps import Rectification
@@ -267,14 +267,9 @@ def _raw(image: RawImage, frames, channels: int) -> np.ndarray:
     if image.frame is None:
         return _decoded(image.path, channels)
     try:
-        raw = frames.read(image.frame)
+        return as_channels(frames.read(image.frame), channels)
     except AppdgenError as exc:
         raise RawImageError(str(exc)) from None
-    if raw.ndim == 2 and channels == 3:
-        return cv2.cvtColor(raw, cv2.COLOR_GRAY2BGR)
-    if raw.ndim == 3 and channels == 1:
-        return cv2.cvtColor(raw, cv2.COLOR_BGR2GRAY)
-    return raw
 
 
 def _decoded(path: Path, channels: int = 3) -> np.ndarray:

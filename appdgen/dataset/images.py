@@ -22,6 +22,16 @@ def read_image(path: Path, channels: int = 3) -> np.ndarray:
     return image
 
 
+def as_channels(image: np.ndarray, channels: int) -> np.ndarray:
+    """An 8-bit image with `channels` (1: grey H×W, 3: BGR H×W×3), converted when it has the other kind (a grey
+    H×W×1 counts as grey)."""
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim == 2:
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if channels == 3 else image
+    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if channels == 1 else image
+
+
 def encode_image(image: np.ndarray, ext: str) -> bytes:
     """Encoded bytes for '.png' (compression level 1), '.jpg' (quality 95) or '.npy'."""
     if ext == ".npy":

@@ -127,7 +127,7 @@ LABEL_COLUMNS = [
     *[(name, "double") for name in (*PARAMS, "new_fx", "new_fy", "new_cx", "new_cy")],
     ("width", "int32"), ("height", "int32"), ("appd_px", "double"), ("appd_pct", "double"), ("sha256", "string"),
 ]
-BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "images_sha256", "max_fov", "samples", "size", "format", "shard_size", "seed",
+BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "images_sha256", "channels", "max_fov", "samples", "size", "format", "shard_size", "seed",
                    "appd_max", "zero_fraction", "interp", "ranges", "command", "counts", "shards", "sampler",
                    "timings", "libraries"}
 

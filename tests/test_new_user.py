@@ -255,7 +255,7 @@ def test_remap_gives_the_bytes_of_opencvs_float_maps(interp: str, small_camera: 
 
 def test_an_image_that_fails_in_a_worker_gets_a_hint_that_works(setup: Setup, tmp_path: Path,
                                                                  monkeypatch) -> None:
-    def broken(path: Path) -> np.ndarray:
+    def broken(path: Path, *_) -> np.ndarray:
         raise AppdgenError(f"{path}: not a readable image")
 
     monkeypatch.setattr(appdgen.dataset.build, "read_image", broken)

@@ -8,6 +8,7 @@ from dataclasses import asdict
 
 import click
 
+from appdgen.cli.dataset import recording_options
 from train.errors import TrainError
 
 DEVICE = click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
@@ -150,32 +151,47 @@ def summary_line(result: dict) -> str:
 @click.option("--batch", default=32, show_default=True, type=click.IntRange(1))
 @click.option("--resize", is_flag=True, help="Rescale rectified images of another size to the network's.")
 @click.option("--csv", "as_csv", is_flag=True, help="CSV output.")
-@click.option("--json", "as_json", is_flag=True, help="JSON output.")
+@click.option("--json", "as_json", is_flag=True, help="JSON output (printed at the end; text and CSV stream).")
+@recording_options
+@click.option("--skip-bad", is_flag=True, help="Skip undecodable frames of a recording (counted at the end).")
 @DEVICE
 def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str | None, max_fov: float | None,
-            threshold: float, window: int, batch: int, resize: bool, as_csv: bool, as_json: bool,
+            threshold: float, window: int, batch: int, resize: bool, as_csv: bool, as_json: bool, topic: str | None,
+            every: int, min_interval: float, start: float | None, end: float | None, skip_bad: bool,
             device: str) -> None:
-    """Predicted APPD per image of a sequence (IMAGES… or a folder), running median and verdict."""
-    from train.predict import predict as run_predict
+    """Predicted APPD per image of a sequence (IMAGES… or a folder, or one ROS bag or video: its frames with their
+    timestamps), running median and verdict."""
+    from train.predict import Frames, predict_stream
 
     if as_csv and as_json:
         raise click.UsageError("--csv and --json are exclusive")
-    preds = run_predict(ckpt, list(images), calib, camera, threshold, window, batch, resize, device, max_fov)
-    rows = [asdict(p) for p in preds]
-    last = preds[-1]
-    summary = {"images": len(preds), "running_median": last.running_median, "threshold": threshold,
-               "verdict": "recalibrate" if last.recalibrate else "ok"}
+    frames = Frames(topic, every, min_interval, start, end, skip_bad)
+    preds = predict_stream(ckpt, list(images), calib, camera, threshold, window, batch, resize, device, max_fov,
+                           frames)
+    rows, writer, count, last = [], None, 0, None
+    for last in preds:
+        count += 1
+        row = asdict(last)
+        if row["timestamp_ns"] is None:  # image files: the columns as before
+            del row["timestamp_ns"]
+        if as_json:
+            rows.append(row)
+        elif as_csv:
+            writer = writer or csv.DictWriter(sys.stdout, fieldnames=list(row))
+            if count == 1:
+                writer.writeheader()
+            writer.writerow(row)
+        else:
+            stamp = "" if last.timestamp_ns is None else f"{last.timestamp_ns}\t"
+            click.echo(f"{stamp}{last.path}\t{last.appd_pct:7.3f}\t{last.running_median:7.3f}\t"
+                       f"{'recalibrate' if last.recalibrate else 'ok'}")
+    summary = {"images": count, "running_median": last.running_median, "threshold": threshold,
+               "verdict": "recalibrate" if last.recalibrate else "ok", "skipped_frames": len(frames.skipped)}
     if as_json:
         click.echo(json.dumps({"predictions": rows, "summary": summary}, indent=1))
-    elif as_csv:
-        writer = csv.DictWriter(sys.stdout, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    else:
-        for p in preds:
-            verdict = "recalibrate" if p.recalibrate else "ok"
-            click.echo(f"{p.path}\t{p.appd_pct:7.3f}\t{p.running_median:7.3f}\t{verdict}")
-        click.echo(f"# {len(preds)} images, running median {last.running_median:.3f}% "
+    elif not as_csv:
+        skipped = f", {len(frames.skipped)} undecodable frames skipped" if frames.skipped else ""
+        click.echo(f"# {count} images{skipped}, running median {last.running_median:.3f}% "
                    f"(window {window}) vs threshold {threshold:g}%: {summary['verdict']}")
 
 

@@ -17,7 +17,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from appdgen.dataset import images
 from appdgen.dataset.layout import (BUILD_JSON, FORMATS, LABEL_COLUMN, RECORD_EXT, RECORD_FIELD, SAMPLE_FIELDS,
-                                    SHARD_GLOB)
+                                    SHARD_GLOB, SOURCE_COLUMNS)
 from appdgen.dataset.reader import ShardEntry as Shard
 from appdgen.dataset.reader import index_columns, open_build
 from appdgen.dataset.sources import KITTI_DRIVE
@@ -94,13 +94,14 @@ class _AllSplits(dict):
         return 1
 
 
-#: The label columns the trainer reads.
+#: The label columns the trainer reads (and the recording's source, in a build from recordings).
 LABEL_COLUMNS = ("key", "split", "raw_path", LABEL_COLUMN)
 
 
 def read_labels(root: Path) -> dict[str, list] | None:
-    """Columns key, split, raw_path, appd_pct of the build's label table, or None when it has none."""
-    table = index_columns(Path(root), LABEL_COLUMNS)
+    """Columns key, split, raw_path, appd_pct (and source, for a build from recordings) of the build's label
+    table, or None when it has none."""
+    table = index_columns(Path(root), LABEL_COLUMNS, optional=[SOURCE_COLUMNS[0][0]])
     if table is None:
         return None
     cols = table.to_pydict()
@@ -119,8 +120,11 @@ _DRIVE = re.compile(KITTI_DRIVE)
 HOLDOUT_UNITS = ("recording", "image")
 
 
-def recording(raw_path: str) -> str:
-    """The recording a raw image comes from: the KITTI drive its path names, else its folder."""
+def recording(raw_path: str, source: str | None = None) -> str:
+    """The recording a raw image comes from: the bag or video it is a frame of (labels' `source`), else the KITTI
+    drive its path names, else its folder."""
+    if source:
+        return source
     drive = _DRIVE.search(raw_path)
     return drive.group(0) if drive else posixpath.dirname(raw_path.replace("\\", "/"))
 
@@ -152,7 +156,7 @@ class Selection:
         key = str(meta.get("key", ""))
         ident = str(meta.get("raw_path") or (self.raw_paths or {}).get(key) or key)
         if self.by == "recording":
-            ident = recording(ident)
+            ident = recording(ident, meta.get("source"))
             if self.held is not None:
                 return (ident in self.held) == (self.side == "val")
         return in_holdout(ident, self.holdout) == (self.side == "val")
@@ -168,15 +172,17 @@ def count_selected(labels: Mapping[str, list] | None, sel: Selection) -> int | N
     """Samples a selection yields, from labels.parquet; None when unknown."""
     if labels is None:
         return None
-    rows = zip(labels["key"], labels["split"], labels["raw_path"])
-    return sum(sel.accepts({"key": k, "split": s, "raw_path": r}) for k, s, r in rows)
+    rows = zip(labels["key"], labels["split"], labels["raw_path"], labels.get("source") or [None] * len(labels["key"]))
+    return sum(sel.accepts({"key": k, "split": s, "raw_path": r, "source": o}) for k, s, r, o in rows)
 
 
 def decode_image(data: bytes, ext: str, where: str) -> np.ndarray:
-    """H×W×3 uint8 image from a sample's encoded bytes (PNG/JPEG in OpenCV BGR order, .npy taken as stored)."""
+    """H×W×C uint8 image as stored (C 3: OpenCV BGR order, 1: grey) from a sample's encoded bytes."""
     arr = images.decode_image(data, f".{ext}", where)
-    if arr.dtype != np.uint8 or arr.ndim != 3 or arr.shape[2] != 3:
-        raise TrainError(f"{where}: expected a 3-channel 8-bit image, got {arr.dtype} {arr.shape}")
+    if arr.ndim == 2:  # a grey sample (a build with channels 1)
+        arr = arr[:, :, None]
+    if arr.dtype != np.uint8 or arr.ndim != 3 or arr.shape[2] not in (1, 3):
+        raise TrainError(f"{where}: expected a 3-channel or grey 8-bit image, got {arr.dtype} {arr.shape}")
     return arr
 
 
@@ -348,19 +354,19 @@ def channel_stats(spec: StreamSpec, n: int, n_total: int | None
     # A 'world' of `stride` ranks in sample mode picks every stride-th sample: spread, not the first n.
     sub = StreamSpec(spec.shards, spec.selection, spec.size, world=stride, force_sample_mode=True, limit=n)
     image_sum: np.ndarray | None = None
-    total_sq = np.zeros(3)
+    total_sq: np.ndarray | float = 0.0
     count = 0
     labels: list[float] = []
     for sample in ShardStream(sub):
         img = sample["image"].numpy().astype(np.float64) / 255.0
         image_sum = img if image_sum is None else image_sum + img
-        total_sq += (img**2).reshape(3, -1).sum(1)
+        total_sq = total_sq + (img**2).reshape(img.shape[0], -1).sum(1)
         count += 1
         labels.append(float(sample["label"]))
     if image_sum is None:
         raise TrainError(f"no samples for {spec.selection.describe()} in {len(spec.shards)} shard(s)")
     mean_image = image_sum / count
     pixels = count * mean_image[0].size
-    mean = mean_image.reshape(3, -1).mean(1)
+    mean = mean_image.reshape(mean_image.shape[0], -1).mean(1)
     std = np.sqrt(np.maximum(total_sq / pixels - mean**2, 1e-12))
     return mean.tolist(), np.maximum(std, 1e-3).tolist(), labels, mean_image.astype(np.float32)

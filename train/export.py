@@ -26,7 +26,8 @@ def metadata(model: AppdNet, ckpt: dict) -> dict:
     """What a deployment needs to feed the exported model: input layout, range, order, output unit."""
     cfg = model.cfg
     return {
-        "input": f"float32 N x 3 x {cfg.height} x {cfg.width}, values in [0, 1], channel order {cfg.channels}",
+        "input": f"float32 N x {cfg.in_channels} x {cfg.height} x {cfg.width}, values in [0, 1], channel order "
+                 f"{cfg.channels}",
         "output": "float32 N: predicted APPD, % of the raw image diagonal",
         "normalization": "included in the model", "width": cfg.width, "height": cfg.height,
         "channels": cfg.channels, "label_mean": checkpoint.label_mean(ckpt), "step": int(ckpt["step"]),
@@ -37,7 +38,7 @@ def metadata(model: AppdNet, ckpt: dict) -> dict:
 def example(model: AppdNet, n: int = 2, seed: int = 0) -> torch.Tensor:
     """A reproducible random input batch at the network size."""
     g = torch.Generator().manual_seed(seed)
-    return torch.rand(n, 3, model.cfg.height, model.cfg.width, generator=g)
+    return torch.rand(n, model.cfg.in_channels, model.cfg.height, model.cfg.width, generator=g)
 
 
 def to_pt2(model: AppdNet, path: Path, meta: dict) -> float:

@@ -115,7 +115,8 @@ def holdout_unit(labels: dict | None, opts: FitOptions) -> tuple[str, frozenset[
         raise TrainError(f"--val-by must be one of {', '.join(HOLDOUT_UNITS)}, got {opts.val_by!r}")
     if opts.val_by == "image" or labels is None:
         return opts.val_by, None
-    found = {recording(str(r)) for s, r in zip(labels["split"], labels["raw_path"]) if s == opts.split}
+    sources = labels.get("source") or [None] * len(labels["split"])
+    found = {recording(str(r), o) for s, r, o in zip(labels["split"], labels["raw_path"], sources) if s == opts.split}
     if len(found) < 2:
         print(f"fit: split {opts.split!r} is one recording ({next(iter(found), '?')!r}); holding out by image",
               file=sys.stderr)
@@ -163,7 +164,9 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
     mean, std, sub_labels, mean_image = channel_stats(spec, opts.stats_samples, plan.n_train)
     label_mean = _train_label_mean(labels, plan.train) if labels else sum(sub_labels) / len(sub_labels)
     torch.manual_seed(opts.seed)
-    model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), normalize=opts.normalize))
+    channels = "grey" if len(mean) == 1 else "bgr"  # the build's samples: 1 channel from a mono source
+    model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), channels=channels,
+                                normalize=opts.normalize))
     if opts.normalize == "pixel":
         with torch.no_grad():
             model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])

@@ -13,6 +13,9 @@ PAPER_FILTERS: tuple[int, ...] = (32, 32, 32, 64, 128, 128, 128)
 PAPER_DENSE: tuple[int, ...] = (512, 128)
 #: Input normalisation: per-channel mean and std, or (the released code's) a per-pixel mean image and channel std.
 NORMALIZE = ("channel", "pixel")
+#: ModelConfig.channels → the network's input channels: OpenCV's BGR colour, or one grey channel (a build from a
+#: mono camera: build.json's channels 1).
+INPUT_CHANNELS = {"bgr": 3, "grey": 1}
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,11 @@ class ModelConfig:
         names = set(cls.__dataclass_fields__)
         kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in names}
         return cls(**kw)
+
+    @property
+    def in_channels(self) -> int:
+        """Channels of the input images (3 BGR, 1 grey)."""
+        return INPUT_CHANNELS[self.channels]
 
 
 def min_side(n_blocks: int = len(PAPER_FILTERS)) -> int:
@@ -92,7 +100,7 @@ def conv_block(c_in: int, c_out: int) -> nn.Sequential:
 
 
 class AppdNet(nn.Module):
-    """Image batch N×3×H×W, float in [0, 1] (channel order cfg.channels) → predicted APPD (% of diagonal), N."""
+    """Image batch N×C×H×W, float in [0, 1] (C and order from cfg.channels) → predicted APPD (% of diagonal), N."""
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
@@ -100,8 +108,10 @@ class AppdNet(nn.Module):
         self.cfg = cfg
         if cfg.normalize not in NORMALIZE:
             raise TrainError(f"normalize must be one of {', '.join(NORMALIZE)}, got {cfg.normalize!r}")
+        if cfg.channels not in INPUT_CHANNELS:
+            raise TrainError(f"channels must be one of {', '.join(INPUT_CHANNELS)}, got {cfg.channels!r}")
         self.normalize = Normalize(cfg.mean, cfg.std, (cfg.height, cfg.width) if cfg.normalize == "pixel" else None)
-        chans = (3, *cfg.filters)
+        chans = (cfg.in_channels, *cfg.filters)
         self.features = nn.Sequential(*(conv_block(a, b) for a, b in zip(chans, chans[1:])))
         # Flatten, not global pooling: where an error shows in the image (centre vs border) carries
         # information about distortion, and the paper flattens too. Fixes the input size to cfg's.

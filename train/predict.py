@@ -1,16 +1,19 @@
-"""`predict`: APPD per image of a sequence, a running median, and a recalibrate verdict."""
+"""`predict`: APPD per image of a sequence (images, or the frames of a bag or video), a running median, and a
+recalibrate verdict, streamed batch by batch."""
 from __future__ import annotations
 
 import statistics
 from collections import deque
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
+from appdgen.dataset.images import as_channels
 from train import checkpoint, runtime
 from appdgen.dataset.layout import FORMATS
 from appdgen.dataset.sources import IMAGE_SUFFIXES
@@ -20,6 +23,8 @@ from train.model import AppdNet
 Preprocess = Callable[[np.ndarray, str], np.ndarray]
 #: What a folder given to predict is listed for: raw camera images, and images as a build encodes them (.npy too).
 IMAGES = frozenset((*IMAGE_SUFFIXES, *FORMATS.values()))
+#: One image of the sequence: its name, its timestamp (ns, frames of recordings) or None, and its decoder.
+Item = tuple[str, "int | None", Callable[[], np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -30,6 +35,7 @@ class Prediction:
     appd_pct: float
     running_median: float
     recalibrate: bool
+    timestamp_ns: int | None = field(default=None, kw_only=True)  # frames of a recording: when it was taken
 
 
 def list_images(inputs: list[str]) -> list[Path]:
@@ -45,6 +51,56 @@ def list_images(inputs: list[str]) -> list[Path]:
     if not paths:
         raise TrainError(f"no images found in {', '.join(inputs)}")
     return paths
+
+
+@dataclass(frozen=True)
+class Frames:
+    """Which frames of a recording predict reads (as build's --topic, --every, --min-interval, --start, --end),
+    and whether undecodable frames are skipped (counted in `skipped`) instead of refused."""
+
+    topic: str | None = None
+    every: int = 1
+    min_interval: float = 0.0
+    start: float | None = None
+    end: float | None = None
+    skip_bad: bool = False
+    skipped: list = field(default_factory=list, compare=False)
+
+
+def sequence(inputs: list[str], frames: Frames, calib: str | None, camera: str | None) -> Iterator[Item]:
+    """The images in order: a recording's chosen frames, streamed (the topic as build chooses it), else the
+    files and folders' images."""
+    from appdgen.dataset.recordings import is_recording
+
+    if not any(is_recording(Path(i)) for i in inputs):
+        for path in list_images(inputs):
+            yield str(path), None, partial(read_image, path)
+        return
+    if len(inputs) != 1:
+        raise TrainError(f"predict reads one recording at a time, got {', '.join(inputs)}")
+    yield from recording_items(Path(inputs[0]), frames, calib, camera)
+
+
+def recording_items(path: Path, frames: Frames, calib: str | None, camera: str | None) -> Iterator[Item]:
+    """The chosen frames of a bag or video as items, in one pass (memory flat over hour-long recordings)."""
+    from appdgen.calib.formats import calibration_topic
+    from appdgen.dataset.recordings import FrameChoice, choose_topic, stream
+    from appdgen.errors import AppdgenError
+
+    if not path.exists():
+        raise TrainError(f"{path}: no such recording")
+    choice = FrameChoice(frames.every, frames.min_interval, frames.start, frames.end)
+    topic = choose_topic(path, frames.topic, calibration_topic(calib, camera) if calib else None)
+    for frame, decode in stream(path, topic, choice):
+        if not frames.skip_bad:
+            yield frame.name, frame.timestamp_ns, decode
+            continue
+        try:
+            image = decode()
+        except AppdgenError as exc:
+            frames.skipped.append(str(exc))
+            continue
+        yield frame.name, frame.timestamp_ns, partial(np.asarray, image)
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -109,11 +165,21 @@ def rectifier(calib_path: str, camera: str | None, size: tuple[int, int], rule: 
     return prep
 
 
-def batches(paths: list[Path], prep: Preprocess, batch: int) -> Iterator[tuple[list[Path], torch.Tensor]]:
-    """(paths, uint8 N×3×H×W) chunks of the sequence, preprocessed."""
-    for i in range(0, len(paths), batch):
-        chunk = paths[i:i + batch]
-        imgs = [prep(read_image(p), str(p)) for p in chunk]
+def batches(items: Iterable[Item], prep: Preprocess, batch: int, channels: int = 3
+            ) -> Iterator[tuple[list[Item], torch.Tensor]]:
+    """(items, uint8 N×C×H×W) chunks of the sequence, decoded with the network's channels and preprocessed (each
+    item as it comes: a recording's decoder holds its file open only until the next frame)."""
+    chunk: list[Item] = []
+    imgs: list[np.ndarray] = []
+    for item in items:
+        name, _, decode = item
+        chunk.append(item)
+        img = prep(as_channels(decode(), channels), name)
+        imgs.append(img.reshape(*img.shape[:2], -1))
+        if len(chunk) == batch:
+            yield chunk, torch.from_numpy(np.stack(imgs).transpose(0, 3, 1, 2).copy())
+            chunk, imgs = [], []
+    if chunk:
         yield chunk, torch.from_numpy(np.stack(imgs).transpose(0, 3, 1, 2).copy())
 
 
@@ -126,19 +192,37 @@ def run_model(model: AppdNet, images: torch.Tensor, device: torch.device) -> lis
 
 def running_verdicts(paths: list[Path], values: list[float], window: int, threshold: float) -> list[Prediction]:
     """Median of the last `window` predictions and 'recalibrate' when it exceeds threshold (APPD %)."""
-    recent: deque[float] = deque(maxlen=max(1, window))
-    out = []
-    for path, v in zip(paths, values):
-        recent.append(v)
-        med = statistics.median(recent)
-        out.append(Prediction(str(path), v, med, med > threshold))
-    return out
+    verdicts = RunningVerdict(window, threshold)
+    return [verdicts.add(str(path), v) for path, v in zip(paths, values)]
+
+
+class RunningVerdict:
+    """The running median of the last `window` predictions, and 'recalibrate' when it exceeds threshold (APPD %)."""
+
+    def __init__(self, window: int, threshold: float) -> None:
+        self.recent: deque[float] = deque(maxlen=max(1, window))
+        self.threshold = threshold
+
+    def add(self, path: str, value: float, timestamp_ns: int | None = None) -> Prediction:
+        """The prediction of the next image with the verdict up to it."""
+        self.recent.append(value)
+        med = statistics.median(self.recent)
+        return Prediction(path, value, med, med > self.threshold, timestamp_ns=timestamp_ns)
 
 
 def predict(ckpt_path: str, inputs: list[str], calib: str | None = None, camera: str | None = None,
             threshold: float = 1.0, window: int = 9, batch: int = 32, resize: bool = False,
-            device: str = "auto", max_fov: float | None = None) -> list[Prediction]:
+            device: str = "auto", max_fov: float | None = None, frames: Frames | None = None) -> list[Prediction]:
     """Predictions over a sequence of images, in order (max_fov: degrees, only for a checkpoint without one)."""
+    return list(predict_stream(ckpt_path, inputs, calib, camera, threshold, window, batch, resize, device, max_fov,
+                               frames))
+
+
+def predict_stream(ckpt_path: str, inputs: list[str], calib: str | None = None, camera: str | None = None,
+                   threshold: float = 1.0, window: int = 9, batch: int = 32, resize: bool = False,
+                   device: str = "auto", max_fov: float | None = None, frames: Frames | None = None
+                   ) -> Iterator[Prediction]:
+    """predict's predictions as each batch is done (a recording is read once, frame by frame)."""
     dev = runtime.pick_device(device)
     runtime.setup_threads(dev)
     ckpt = checkpoint.load(ckpt_path)
@@ -148,8 +232,12 @@ def predict(ckpt_path: str, inputs: list[str], calib: str | None = None, camera:
     model = checkpoint.build_model(ckpt).to(dev).to(memory_format=torch.channels_last)
     size = (model.cfg.width, model.cfg.height)
     prep = rectifier(calib, camera, size, rule) if calib else size_check(size, resize)
-    paths = list_images(inputs)
-    values: list[float] = []
-    for _, images in batches(paths, prep, batch):
-        values += run_model(model, images, dev)
-    return running_verdicts(paths, values, window, threshold)
+    verdicts = RunningVerdict(window, threshold)
+    found = False
+    for chunk, images in batches(sequence(inputs, frames or Frames(), calib, camera), prep, batch,
+                                 model.cfg.in_channels):
+        found = True
+        for (name, stamp, _), value in zip(chunk, run_model(model, images, dev)):
+            yield verdicts.add(name, value, stamp)
+    if not found:
+        raise TrainError(f"no frames chosen in {', '.join(inputs)}")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import reprlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -23,11 +23,13 @@ _REPR.maxlevel = 2
 
 @dataclass(frozen=True)
 class Found:
-    """A recognised file: its format's name, a reader per camera name, and the format's default image size."""
+    """A recognised file: its format's name, a reader per camera name, the format's default image size, and the
+    ROS image topic per camera where the file names one (Kalibr's ``rostopic``)."""
 
     kind: str
     cameras: dict[str, Callable[[], Parts]]
     default_size: Size | None = None
+    topics: dict[str, str] = field(default_factory=dict)
 
 
 def short(value: Any) -> str:

@@ -69,6 +69,13 @@ def list_cameras(path: PathLike) -> list[str]:
         return list(_recognise(path).cameras)
 
 
+def calibration_topic(path: PathLike, camera: str | int | None = None) -> str | None:
+    """The ROS image topic a Kalibr camchain names for a camera (its ``rostopic``), None for files without one."""
+    with _about(str(path)):
+        found = _recognise(path)
+        return found.topics.get(_select(list(found.cameras), camera))
+
+
 def native_suffix(calib: Calibration) -> str:
     """The extension to save calib under: .yaml where OpenCV YAML holds its model (radtan, rational, kb4), else .json."""
     return ".yaml" if calib.model in opencv.YAML_MODELS else ".json"

@@ -34,15 +34,22 @@ def recognise_camchain(doc: dict[Any, Any]) -> Found | None:
     """A Kalibr camchain (``camN`` blocks, in number order), or None."""
     blocks = sorted((k for k in doc if isinstance(k, str) and _KALIBR_CAMERA.fullmatch(k)), key=lambda k: (len(k), k))
     if blocks:
-        return Found("Kalibr camchain", {k: partial(_camera, doc[k]) for k in blocks})
+        return Found("Kalibr camchain", {k: partial(_camera, doc[k]) for k in blocks},
+                     topics={k: t for k in blocks if (t := _topic(doc[k]))})
     return None
 
 
 def recognise_sensor(doc: dict[Any, Any]) -> Found | None:
     """An EuRoC sensor.yaml (one Kalibr camera block at the top level), or None."""
     if "intrinsics" in doc:
-        return Found("EuRoC sensor.yaml", {"0": partial(_camera, doc)})
+        return Found("EuRoC sensor.yaml", {"0": partial(_camera, doc)}, topics={"0": t} if (t := _topic(doc)) else {})
     return None
+
+
+def _topic(camera: Any) -> str | None:
+    """A camera block's ``rostopic`` (the bag topic Kalibr read its images from), None where it names none."""
+    topic = camera.get("rostopic") if isinstance(camera, dict) else None
+    return topic if isinstance(topic, str) and topic else None
 
 
 def _camera(camera: Any) -> Parts:

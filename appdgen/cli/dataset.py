@@ -21,6 +21,26 @@ from appdgen.errors import AppdgenError
 from appdgen.dataset.layout import BUILD_JSON, FORMATS
 from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
 from appdgen.dataset.sources import SPLIT_BY
+from appdgen.dataset.recordings import CHANNELS
+from appdgen.synth.recording import KINDS as RECORDING_KINDS
+
+
+def recording_options(command):
+    """--topic, --every, --min-interval, --start, --end: which frames of a recording (build and predict)."""
+    options = [
+        click.option("--topic", default=None,
+                     help="Image topic of a bag [default: the calibration's rostopic, else the only image topic]."),
+        click.option("--every", default=1, show_default=True, help="Keep every Nth frame of a recording."),
+        click.option("--min-interval", default=0.0, show_default=True, metavar="SECONDS",
+                     help="Keep frames at least this far apart (after --every)."),
+        click.option("--start", default=None, type=float, metavar="SECONDS",
+                     help="Skip the frames before this time, from the recording's first frame."),
+        click.option("--end", default=None, type=float, metavar="SECONDS",
+                     help="Stop at this time, from the recording's first frame."),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
 
 
 VERIFY_LINES = 20  # problems printed; the rest are counted
@@ -60,7 +80,7 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
 @click.option("--per-image", type=int, default=None, help="Samples per raw image (instead of --samples).")
 @size_option
 @click.option("--format", "image_format", default="png", type=click.Choice(list(FORMATS)), show_default=True,
-              help="Image encoding in the shards (png: compression level 1; npy: uint8 HxWx3 BGR).")
+              help="Image encoding in the shards (png: compression level 1; npy: uint8 HxWx3 BGR, HxW grey).")
 @click.option("--shard-size", type=int, default=None,
               help="Samples per shard [default: from --samples alone, about 64 shards of 8 to 1000 samples].")
 @click.option("--jobs", type=int, default=None,
@@ -77,10 +97,15 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
 @click.option("--interp", default=DEFAULT_INTERP, type=click.Choice(list(INTERPOLATIONS)), show_default=True,
               help="Interpolation of the remap.")
 @click.option("--split-by", default="none", type=click.Choice(list(SPLIT_BY)), show_default=True,
-              help="Split column from the path: first folder, KITTI day, or KITTI drive (list files may name splits).")
+              help="Split column from the path: first folder, KITTI day, KITTI drive, or recording (each bag or video; "
+                   "for images their folder); list files may name splits.")
 @click.option("--skip-bad", is_flag=True,
-              help="Skip images of the wrong size, truncated, unreadable or with alpha channels, listing each in "
-                   f"{BUILD_JSON} (else the first is an error).")
+              help="Skip images (or frames) of the wrong size, truncated, unreadable or with alpha channels, listing "
+                   f"each in {BUILD_JSON} (else the first is an error).")
+@recording_options
+@click.option("--channels", "channels_choice", default="auto", type=click.Choice(CHANNELS), show_default=True,
+              help="Channels of the samples: 1 grey, 3 BGR; auto: 1 when every source image is grey (mono8, "
+                   "mono16, grey PNG), else 3.")
 @click.option("--resume", is_flag=True,
               help="Finish an interrupted build in --out (same options, same calibration and image files; "
                    "any working folder).")
@@ -91,13 +116,16 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
 def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, image_format, shard_size, jobs, seed,
-          ranges, appd_max, zero_fraction, max_fov, interp, split_by, skip_bad, resume, overwrite, backend, scheduler,
-          quiet):
+          ranges, appd_max, zero_fraction, max_fov, interp, split_by, skip_bad, topic, every, min_interval, start, end,
+          channels_choice, resume, overwrite, backend, scheduler, quiet):
     """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
     from appdgen.dataset.build import BuildConfig, build as run_build
     from appdgen.util.distribute import resolve_jobs
     from appdgen.sampling.ranges import parse_ranges
-    from appdgen.dataset.sources import check_images, list_images
+    from appdgen.calib.formats import calibration_topic
+    from appdgen.dataset.recordings import FrameChoice, list_recordings, raw_images, resolve_channels
+    from appdgen.dataset.recordings import choose_camera as choose_recording_camera
+    from appdgen.dataset.sources import all_grey, check_images, list_images
 
     if samples is not None and per_image is not None:
         raise AppdgenError("give --samples or --per-image, not both")
@@ -106,16 +134,29 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     if per_image is not None and per_image < 1:
         raise AppdgenError(f"--per-image {per_image}: must be at least 1")
     workers = resolve_jobs(jobs)
-    images = list_images(images_spec, split_by)
-    camera = choose_camera(calib_path, camera, images)
-    reference = load_calibration(calib_path, camera)
-    images, skipped = check_images(images, reference.size, skip_bad)
+    choice = FrameChoice(every, min_interval, start, end)
+    found = list_recordings(images_spec)
+    if found:
+        camera = choose_recording_camera(calib_path, camera, found[0], topic)
+        reference = load_calibration(calib_path, camera)
+        frames = raw_images(found, images_spec, split_by, topic, calibration_topic(calib_path, camera), choice,
+                            reference.size, skip_bad)
+        images, skipped, mono, recordings = frames.images, frames.skipped, frames.mono, frames.recordings
+    else:
+        if topic is not None or choice != FrameChoice():
+            raise AppdgenError(f"--images {images_spec}: --topic/--every/--min-interval/--start/--end choose frames "
+                               f"of recordings (bags, videos), not image files")
+        images = list_images(images_spec, split_by)
+        camera = choose_camera(calib_path, camera, images)
+        reference = load_calibration(calib_path, camera)
+        images, skipped = check_images(images, reference.size, skip_bad)
+        mono, recordings = channels_choice == "auto" and all_grey(images), ()
     total = samples if samples is not None else len(images) * (per_image if per_image is not None else 10)
     config = BuildConfig(
         reference=reference, camera=camera, calib_path=calib_path, images=tuple(images), samples=total,
         size=parse_size(size) or reference.size, image_format=image_format, shard_size=shard_size, seed=seed,
         ranges=parse_ranges(ranges, reference), appd_max=appd_max, zero_fraction=zero_fraction, interp=interp,
-        max_fov=max_fov,
+        max_fov=max_fov, channels=resolve_channels(channels_choice, mono), recordings=recordings,
     )
     summary = run_build(config, Path(out_dir), workers, backend, scheduler, resume, overwrite,
                         progress=not quiet, command=["appdgen", *sys.argv[1:]], skipped=skipped)
@@ -141,9 +182,14 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
 @click.option("--jobs", type=int, default=None,
               help="Worker processes, as build's --jobs (-1 all cores, -2 all but one, …) [default: all cores]; any "
                    "N, same bytes.")
+@click.option("--as", "kind", default="png", type=click.Choice(["png", *RECORDING_KINDS]), show_default=True,
+              help="Write the frames as PNGs, or as a robot's recording: a ROS 1 bag (recording.bag), a ROS 2 bag "
+                   "folder with mcap or sqlite3 storage (recording/), or an mp4 video (recording.mp4); bags hold "
+                   "sensor_msgs/Image on /cam0/image_raw at 10 Hz.")
+@click.option("--mono", is_flag=True, help="Grey frames (mono8 in a bag), as a monochrome camera's.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
-def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
+def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, kind, mono, quiet):
     """Render procedural street frames as the (scaled) camera sees them, through any lens model, plus its
     calibration (calibration.yaml; calibration.json for ds/eucm, which OpenCV YAML cannot hold)."""
     from appdgen.calib.defaults import DEFAULT_CALIB_PATH
@@ -151,6 +197,7 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
     from appdgen.util.progress import Progress
     from appdgen.util.distribute import resolve_jobs
     from appdgen.synth import MOUNTS, calibration_name, scale_calibration, synthesize
+    from appdgen.synth.recording import frames_as, recording_target
 
     if frames < 1:
         raise AppdgenError(f"--frames {frames}: must be at least 1")
@@ -159,11 +206,16 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, quiet):
     calib = load_calibration(calib_path or str(DEFAULT_CALIB_PATH), camera or (None if calib_path else "02"))
     scaled = scale_calibration(calib, scale)
     out = Path(out_dir)
+    if kind != "png":
+        recording_target(out, kind)  # refused before any frame is rendered
     bar = Progress(frames, unit="frames", enabled=not quiet)
-    synthesize(calib, frames, out, seed, scale, progress=bar.advance, jobs=resolve_jobs(jobs), mount=MOUNTS[mount])
+    written = synthesize(calib, frames, out, seed, scale, progress=bar.advance, jobs=resolve_jobs(jobs),
+                         mount=MOUNTS[mount])
+    where = frames_as(written, out, kind, mono)
     name = calibration_name(scaled)
     save(scaled, out / name)
-    click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}) and {name} to {out_dir}")
+    what = "" if kind == "png" else f" as {where.name}"
+    click.echo(f"wrote {frames} frames ({scaled.width}x{scaled.height}){what} and {name} to {out_dir}")
 
 
 @main.command("inspect")

@@ -30,7 +30,7 @@ from appdgen.calib.calibration import Calibration
 from appdgen.geometry.crop import check_max_fov, check_output_size, valid_region
 from appdgen.util.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
-from appdgen.dataset.images import encode_image, read_image
+from appdgen.dataset.images import as_channels, encode_image, read_image
 from appdgen.dataset.layout import (FORMATS, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES, ShardStats,
                                     sample_key, shard_name)
 from appdgen.geometry.maps import Rectification
@@ -86,6 +86,13 @@ class BuildConfig:
     zero_fraction: float = 0.01
     interp: str = DEFAULT_INTERP
     max_fov: float | None = None  # degrees: bounds the horizontal field of view of every crop
+    channels: int = 3  # of the samples: 1 grey, 3 BGR
+    recordings: tuple[tuple[str, str], ...] = ()  # (source, sha256) of the recordings the frames come from
+
+    @property
+    def from_recordings(self) -> bool:
+        """Whether the raw images are frames of recordings (bags, videos): labels get the source columns."""
+        return bool(self.recordings)
 
     def __post_init__(self) -> None:
         if self.samples < 1:
@@ -105,6 +112,8 @@ class BuildConfig:
         except AppdgenError as exc:
             raise AppdgenError(f"--size: {exc}") from None
         check_max_fov(self.max_fov)
+        if self.channels not in (1, 3):
+            raise AppdgenError(f"--channels {self.channels}: expected 1 or 3")
         self._check_reference()
 
     def _check_reference(self) -> None:
@@ -123,6 +132,10 @@ class BuildConfig:
     def ext(self) -> str:
         """The image members' extension."""
         return FORMATS[self.image_format]
+
+    def writer(self, out: Path) -> BuildWriter:
+        """The writer of this build's folder `out` (its label columns follow the lens model and the source)."""
+        return BuildWriter(out, self.reference.param_names, self.from_recordings)
 
     def shard_samples(self, shard: int) -> range:
         """Sample indices of one shard."""
@@ -145,10 +158,12 @@ class BuildConfig:
     @functools.cached_property
     def _plan(self) -> dict:
         """plan(), worked out once per config: it reads the calibration file and resolves every image path."""
+        recordings = {"recordings_sha256": [h for _, h in self.recordings]} if self.recordings else {}
         return {
             "appdgen_version": __version__,
             "calibration": {"camera": self.camera, "sha256": file_hash(self.calib_path), **self.reference.to_dict()},
-            "images_sha256": content_hash([f"{i.path.resolve()}\t{i.split}" for i in self.images]),
+            "images_sha256": content_hash([_image_line(i) for i in self.images]), **recordings,
+            "channels": self.channels,
             "samples": self.samples, "size": list(self.size), "format": self.image_format,
             "shard_size": self.shard_size, "seed": self.seed, "appd_max": self.appd_max,
             "zero_fraction": self.zero_fraction, "interp": self.interp, "max_fov": self.max_fov,
@@ -158,20 +173,33 @@ class BuildConfig:
     def record(self) -> dict:
         """plan() plus the names as given (calibration path, image names and splits): plan.json and build.json."""
         plan = self.plan()
-        return {**plan, "calibration": {"path": self.calib_path, **plan["calibration"]},
+        sources = {"recordings": [s for s, _ in self.recordings]} if self.recordings else {}
+        return {**plan, "calibration": {"path": self.calib_path, **plan["calibration"]}, **sources,
                 "images": [[i.name, i.split] for i in self.images]}
 
     def renamed(self, record: dict) -> "BuildConfig":
         """This config with the names a plan.json recorded (same content, so the resumed rows match the rest)."""
-        images = tuple(RawImage(i.path, name, split) for i, (name, split) in zip(self.images, record["images"]))
-        renamed = dataclasses.replace(self, calib_path=record["calibration"]["path"], images=images)
+        sources = dict(zip((s for s, _ in self.recordings), record.get("recordings", ())))
+        images = tuple(dataclasses.replace(i, name=name, split=split, frame=i.frame and dataclasses.replace(
+                           i.frame, source=sources.get(i.frame.source, i.frame.source)))
+                       for i, (name, split) in zip(self.images, record["images"]))
+        recordings = tuple((sources.get(s, s), h) for s, h in self.recordings)
+        renamed = dataclasses.replace(self, calib_path=record["calibration"]["path"], images=images,
+                                      recordings=recordings)
         renamed.__dict__["_plan"] = self._plan  # the same content, so the same plan (no second hashing)
         return renamed
 
 
+def _image_line(image: RawImage) -> str:
+    """A raw image in the plan's images hash: its resolved path and split, for a frame also its place."""
+    line = f"{image.path.resolve()}\t{image.split}"
+    frame = image.frame
+    return line if frame is None else f"{line}\t{frame.topic}\t{frame.timestamp_ns}\t{frame.repeat}\t{frame.pts}"
+
+
 def plan_content(record: dict) -> dict:
     """The plan inside a recorded plan.json: without the names, which may differ for the same content."""
-    content = {k: v for k, v in record.items() if k != "images"}
+    content = {k: v for k, v in record.items() if k not in ("images", "recordings")}
     calibration = record.get("calibration")
     if isinstance(calibration, dict):
         content["calibration"] = {k: v for k, v in calibration.items() if k != "path"}
@@ -203,14 +231,15 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
         spent[stage] += now - last
         last = now
 
+    frames = _frame_reader(config, shard)
     # Streamed to disk as it grows: a 1,000-sample full-size shard would be ~1 GB in memory.
-    with BuildWriter(out, config.reference.param_names).shard(shard) as tar:
+    with config.writer(out).shard(shard) as tar:
         for index in config.shard_samples(shard):
             draw = sampler.draw(config.seed, index)
             evaluations += draw.evaluations
             lap("sample")
             raw_image = config.image_for(index)
-            raw = _decoded(raw_image.path)
+            raw = _raw(raw_image, frames, config.channels)
             lap("decode")
             image = remap_image(raw, draw.rect, config.interp)
             lap("remap")
@@ -221,6 +250,8 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
             rows.append(row)
             lap("write")
     lap("write")
+    if frames is not None:
+        frames.close()
     stats = ShardStats(shard=shard, file=shard_name(shard), samples=len(rows), bytes=tar.size,
                        splits=dict(sorted(Counter(r["split"] for r in rows).items())),
                        references=sum(r["is_reference"] for r in rows), evaluations=evaluations,
@@ -228,31 +259,51 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
     return stats, rows
 
 
-def _decoded(path: Path) -> np.ndarray:
+def _frame_reader(config: BuildConfig, shard: int):
+    """A recordings.FrameReader over the frames of a shard, or None for a build from image files."""
+    if not config.from_recordings:
+        return None
+    from appdgen.dataset.recordings import FrameReader
+
+    return FrameReader([config.image_for(i).frame for i in config.shard_samples(shard)])
+
+
+def _raw(image: RawImage, frames, channels: int) -> np.ndarray:
+    """The raw image of a sample with `channels` (1 grey, 3 BGR): a frame from the shard's reader, else the file."""
+    if image.frame is None:
+        return _decoded(image.path, channels)
+    try:
+        return as_channels(frames.read(image.frame), channels)
+    except AppdgenError as exc:
+        raise RawImageError(str(exc)) from None
+
+
+def _decoded(path: Path, channels: int = 3) -> np.ndarray:
     """A raw image, the last one a worker decoded kept for the next sample (consecutive samples share an image, and
     the next shard usually starts with the image the last one ended with); a file changed since is read anew."""
     try:
         stat = path.stat()
     except OSError:
-        return read_raw(path)  # names the file in its error
-    return _decoded_version(path, stat.st_mtime_ns, stat.st_size)
+        return read_raw(path, channels)  # names the file in its error
+    return _decoded_version(path, stat.st_mtime_ns, stat.st_size, channels)
 
 
 @functools.lru_cache(maxsize=1)
-def _decoded_version(path: Path, mtime_ns: int, size: int) -> np.ndarray:
+def _decoded_version(path: Path, mtime_ns: int, size: int, channels: int = 3) -> np.ndarray:
     """read_raw of one version of a file (the cache key)."""
-    return read_raw(path)
+    return read_raw(path, channels)
 
 
 class RawImageError(AppdgenError):
     """A raw image that passed the checks before the build but does not decode in a worker."""
 
 
-def read_raw(path: Path) -> np.ndarray:
-    """A raw image for remapping (8-bit BGR), refusing one cut short since the build began (it decodes grey)."""
+def read_raw(path: Path, channels: int = 3) -> np.ndarray:
+    """A raw image for remapping (8-bit BGR, or grey for channels 1), refusing one cut short since the build began
+    (it decodes grey)."""
     try:
         check_complete(path)
-        return read_image(path)
+        return read_image(path, channels)
     except AppdgenError as exc:
         raise RawImageError(str(exc)) from None
 
@@ -268,6 +319,7 @@ def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_
         "new_fx": float(k[0, 0]), "new_fy": float(k[1, 1]), "new_cx": float(k[0, 2]), "new_cy": float(k[1, 2]),
         "width": config.size[0], "height": config.size[1],
         "appd_px": distance_px, "appd_pct": px_to_pct(distance_px, config.reference),
+        **(image.frame.columns() if image.frame is not None else {}),
     }
 
 
@@ -344,7 +396,7 @@ def _remove_outputs(out: Path) -> None:
 
 def pending_shards(out: Path, config: BuildConfig) -> list[int]:
     """Shards whose fragment (written last) or tar is missing."""
-    writer = BuildWriter(out, config.reference.param_names)
+    writer = config.writer(out)
     return [k for k in range(config.shards) if not writer.is_done(k)]
 
 
@@ -359,7 +411,7 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
     # is the one an in-process build (--jobs 1) goes on to use.
     config.sampler().check_reachable()
     config = prepare_out(out, config, resume, overwrite)
-    writer = BuildWriter(out, config.reference.param_names)
+    writer = config.writer(out)
     todo = pending_shards(out, config)
     bar = Progress(config.samples, enabled=progress,
                    done=config.samples - sum(len(config.shard_samples(k)) for k in todo))

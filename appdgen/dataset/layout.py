@@ -69,8 +69,15 @@ STATS_KEY = b"appdgen.shard_stats"
 STAGES = ("decode", "sample", "remap", "encode", "write")
 
 
-def label_schema(params: Sequence[str]) -> pa.Schema:
-    """labels.parquet columns for a lens model's parameters `params` (fx, fy, cx, cy, then its coefficients).
+#: Where a frame of a recording (bag, video) came from, after the label columns of a build from recordings:
+#: the recording as given, its topic ("" for a video), the bag's receive time or the video's presentation time
+#: (ns), and the frame's number in the topic or video (from 0). Name → pyarrow type name.
+SOURCE_COLUMNS = (("source", "string"), ("topic", "string"), ("timestamp_ns", "int64"), ("frame", "int64"))
+
+
+def label_schema(params: Sequence[str], sources: bool = False) -> pa.Schema:
+    """labels.parquet columns for a lens model's parameters `params` (fx, fy, cx, cy, then its coefficients),
+    with SOURCE_COLUMNS for a build from recordings (`sources`).
 
     Units: parameters in raw pixels (fx…cy) or unitless (coefficients); new_* in output pixels; appd_px in raw
     pixels, appd_pct in % of the raw diagonal.
@@ -84,6 +91,7 @@ def label_schema(params: Sequence[str]) -> pa.Schema:
         ("new_fx", pa.float64()), ("new_fy", pa.float64()), ("new_cx", pa.float64()), ("new_cy", pa.float64()),
         ("width", pa.int32()), ("height", pa.int32()), ("appd_px", pa.float64()), ("appd_pct", pa.float64()),
         (HASH_COLUMN, pa.string()),
+        *((name, getattr(pa, kind)()) for name, kind in (SOURCE_COLUMNS if sources else ())),
     ])
 
 

@@ -75,7 +75,7 @@ def model_params(info: dict) -> tuple[str, ...]:
 def read_index(out: Path, info: dict, columns: Sequence[str] | None = None) -> pa.Table:
     """labels.parquet with the label schema of build.json's lens model (only `columns` when given); AppdgenError
     naming the file otherwise."""
-    schema = label_schema(model_params(info))
+    schema = label_schema(model_params(info), sources=from_recordings(info))
     try:
         table = pq.read_table(out / INDEX)
     except (OSError, pa.ArrowException) as exc:
@@ -87,10 +87,19 @@ def read_index(out: Path, info: dict, columns: Sequence[str] | None = None) -> p
     return table.select(list(columns)) if columns is not None else table
 
 
-def index_columns(out: Path, columns: Sequence[str]) -> pa.Table | None:
-    """Some columns of labels.parquet as found, None when there is none: for a folder without build.json."""
+def from_recordings(info: dict) -> bool:
+    """Whether build.json's build took its frames from recordings (bags, videos): its labels have SOURCE_COLUMNS."""
+    return bool(info.get("recordings_sha256"))
+
+
+def index_columns(out: Path, columns: Sequence[str], optional: Sequence[str] = ()) -> pa.Table | None:
+    """Some columns of labels.parquet as found (and those of `optional` it has), None when there is none: for a
+    folder without build.json."""
     try:
-        return pq.read_table(out / INDEX, columns=list(columns)) if (out / INDEX).is_file() else None
+        if not (out / INDEX).is_file():
+            return None
+        names = pq.read_schema(out / INDEX).names
+        return pq.read_table(out / INDEX, columns=[*columns, *(n for n in optional if n in names)])
     except (OSError, pa.ArrowException) as exc:
         raise AppdgenError(f"{out / INDEX}: unreadable ({exc})") from None
 

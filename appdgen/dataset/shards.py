@@ -63,10 +63,11 @@ class TarShard:
         self._stack.__exit__(*exc_info)
 
 
-def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: ShardStats) -> pa.Table:
-    """One shard's label rows (columns of label_schema(params)) and its stats as a Parquet file, atomically; returns
-    the table written (the index can take it from memory)."""
-    schema = label_schema(params)
+def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: ShardStats,
+                   sources: bool = False) -> pa.Table:
+    """One shard's label rows (columns of label_schema(params, sources)) and its stats as a Parquet file,
+    atomically; returns the table written (the index can take it from memory)."""
+    schema = label_schema(params, sources)
     columns = [pa.array([r[n] for r in rows], f.type) for n, f in zip(schema.names, schema)]
     table = pa.Table.from_arrays(columns, schema=schema.with_metadata({STATS_KEY: stats.to_json()}))
     _write_table(path, table)
@@ -84,10 +85,10 @@ def read_fragment(path: Path, schema: pa.Schema) -> pa.Table:
     return pq.read_table(path, schema=schema)
 
 
-def write_index(path: Path, fragments: list[Path | pa.Table], params: Sequence[str]) -> int:
+def write_index(path: Path, fragments: list[Path | pa.Table], params: Sequence[str], sources: bool = False) -> int:
     """Concatenate shard fragments (files, or tables write_fragment returned) in order into labels.parquet,
     atomically; returns the row count."""
-    schema = label_schema(params)
+    schema = label_schema(params, sources)
     tables = [f.cast(schema) if isinstance(f, pa.Table) else read_fragment(f, schema) for f in fragments]
     table = pa.concat_tables(tables) if tables else schema.empty_table()
     _write_table(path, table)
@@ -103,10 +104,11 @@ def _write_table(path: Path, table: pa.Table) -> None:
 
 class BuildWriter:
     """Writes one build folder `out`: shard tars, their fragments under .parts (a shard is done once its fragment
-    is), then labels.parquet and build.json; `params` are the lens model's parameter columns."""
+    is), then labels.parquet and build.json; `params` are the lens model's parameter columns, `sources` adds the
+    recordings' columns (layout.SOURCE_COLUMNS)."""
 
-    def __init__(self, out: Path, params: Sequence[str]) -> None:
-        self.out, self.params = Path(out), tuple(params)
+    def __init__(self, out: Path, params: Sequence[str], sources: bool = False) -> None:
+        self.out, self.params, self.sources = Path(out), tuple(params), sources
         self.parts = self.out / PARTS_DIR
 
     def shard(self, shard: int) -> TarShard:
@@ -120,13 +122,13 @@ class BuildWriter:
     def shard_done(self, stats: ShardStats, rows: list[dict]) -> pa.Table:
         """Write a finished shard's label rows and stats as its fragment (marking it done); returns the table."""
         self.parts.mkdir(parents=True, exist_ok=True)
-        return write_fragment(self.parts / fragment_name(stats.shard), rows, self.params, stats)
+        return write_fragment(self.parts / fragment_name(stats.shard), rows, self.params, stats, self.sources)
 
     def finish(self, shards: int, made: dict[int, pa.Table], summary: Callable[[list[ShardStats]], dict]) -> dict:
         """Write labels.parquet from the fragments (this run's from memory, `made`) and build.json from
         summary(stats of every shard), then drop the parts; returns build.json's content."""
         fragments = [made.get(k, self.parts / fragment_name(k)) for k in range(shards)]
-        write_index(self.out / INDEX, fragments, self.params)
+        write_index(self.out / INDEX, fragments, self.params, self.sources)
         content = summary([read_stats(f) for f in fragments])
         atomic_write(self.out / BUILD_JSON, json.dumps(content, indent=2).encode())
         # One rename ends the build (a kill during a plain rmtree could leave a plan-less, unresumable .parts).

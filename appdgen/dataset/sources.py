@@ -6,13 +6,17 @@ import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 
 from appdgen.errors import AppdgenError
 
+if TYPE_CHECKING:
+    from appdgen.dataset.recordings import Frame
+
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
-SPLIT_BY = ("none", "parent", "day", "drive")
+SPLIT_BY = ("none", "parent", "day", "drive", "recording")
 KITTI_DAY = r"\d{4}_\d{2}_\d{2}"  # a KITTI raw recording day, e.g. 2011_09_26
 KITTI_DRIVE = KITTI_DAY + r"_drive_\d{4}"  # a drive of that day, e.g. 2011_09_26_drive_0001
 _DAY = re.compile(f"({KITTI_DAY})")
@@ -27,11 +31,13 @@ _JPEG_TAIL = 1024  # bytes searched for the end-of-image marker (some writers ap
 
 @dataclass(frozen=True)
 class RawImage:
-    """One raw image: its path, the path as recorded in the index, and its split name."""
+    """One raw image: its path, the path as recorded in the index, and its split name; for a frame of a
+    recording (bag, video) the recording's path and the frame."""
 
     path: Path
     name: str
     split: str
+    frame: Frame | None = None
 
 
 def list_images(spec: str, split_by: str = "none") -> list[RawImage]:
@@ -95,6 +101,8 @@ def _list_fields(line: str, where: str) -> list[str]:
 def _split_of(relative: Path, split_by: str) -> str:
     """The split name of an image path under a --split-by rule ('all' when none applies)."""
     text = relative.as_posix()
+    if split_by == "recording":  # a folder of images: the folder each image lies in
+        return relative.parent.as_posix() if len(relative.parts) > 1 else "all"
     if split_by == "parent":
         return relative.parts[0] if len(relative.parts) > 1 else "all"
     if split_by in ("day", "drive"):
@@ -143,20 +151,35 @@ def image_header(path: Path) -> ImageHeader:
     check_complete(path)
     try:
         with open(path, "rb") as handle:
-            head = handle.read(32)
-            if head.startswith(_PNG_START) and head[12:16] == b"IHDR":
-                width, height = struct.unpack(">II", head[16:24])
-                return ImageHeader(width, height, _PNG_CHANNELS.get(head[25], 0))
-            if head.startswith(_JPEG_START):
-                header = _jpeg_header(handle)
-                if header:
-                    return header
+            header = stream_header(handle)
+            if header:
+                return header
     except OSError as exc:
         raise AppdgenError(f"{path}: cannot read image ({exc.strerror or exc})") from None
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise AppdgenError(f"{path}: not a readable image")
     return ImageHeader(image.shape[1], image.shape[0], 1 if image.ndim == 2 else image.shape[2])
+
+
+def stream_header(handle) -> ImageHeader | None:
+    """Size and channels from the PNG/JPEG header of an open binary file (or BytesIO) at its start, else None."""
+    head = handle.read(32)
+    if head.startswith(_PNG_START) and head[12:16] == b"IHDR":
+        width, height = struct.unpack(">II", head[16:24])
+        return ImageHeader(width, height, _PNG_CHANNELS.get(head[25], 0))
+    if head.startswith(_JPEG_START):
+        return _jpeg_header(handle)
+    return None
+
+
+def truncation(data: bytes) -> str | None:
+    """Why encoded PNG/JPEG bytes are cut short (no IEND chunk, no end-of-image marker near the end), or None."""
+    if data.startswith(_PNG_START) and not data.endswith(_PNG_END):
+        return "truncated PNG (no IEND chunk at its end)"
+    if data.startswith(_JPEG_START) and _JPEG_END not in data[-_JPEG_TAIL:]:
+        return f"truncated JPEG (no end-of-image marker in its last {_JPEG_TAIL} bytes)"
+    return None
 
 
 def check_complete(path: Path) -> None:
@@ -166,17 +189,12 @@ def check_complete(path: Path) -> None:
         with open(path, "rb") as handle:
             head = handle.read(8)
             size = handle.seek(0, 2)
-            if head.startswith(_PNG_START):
-                handle.seek(max(size - len(_PNG_END), 0))
-                if handle.read() != _PNG_END:
-                    raise AppdgenError(f"{path}: truncated PNG (no IEND chunk at its end)")
-            elif head.startswith(_JPEG_START):
-                handle.seek(max(size - _JPEG_TAIL, 0))
-                if _JPEG_END not in handle.read():
-                    raise AppdgenError(f"{path}: truncated JPEG (no end-of-image marker in its last {_JPEG_TAIL} "
-                                       f"bytes)")
+            handle.seek(max(size - _JPEG_TAIL, len(head)))
+            problem = truncation(head + handle.read())
     except OSError as exc:
         raise AppdgenError(f"{path}: cannot read image ({exc.strerror or exc})") from None
+    if problem:
+        raise AppdgenError(f"{path}: {problem}")
 
 
 def _jpeg_header(handle) -> ImageHeader | None:
@@ -217,6 +235,11 @@ def check_images(images: list[RawImage], size: tuple[int, int], skip_bad: bool) 
         first = f"{dropped[0]['path']}: {dropped[0]['problem']}" if dropped else "none given"
         raise AppdgenError(f"no usable image left: {first}")
     return kept, dropped
+
+
+def all_grey(images: list[RawImage]) -> bool:
+    """Whether every image file is grey (one channel in its header)."""
+    return all(image_header(image.path).channels == 1 for image in images)
 
 
 def _header_problem(header: ImageHeader, size: tuple[int, int]) -> str | None:

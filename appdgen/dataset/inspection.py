@@ -82,7 +82,7 @@ def read_index(out: Path, info: dict) -> pa.Table:
         table = pq.read_table(out / INDEX)
     except (OSError, pa.ArrowException) as exc:
         raise AppdgenError(f"{INDEX}: unreadable ({exc})") from None
-    if not table.schema.equals(schema):
+    if not (table.schema.equals(schema) or table.schema.equals(label_schema(model_params(info), crop=False))):
         missing = [n for n in schema.names if n not in table.schema.names]
         raise AppdgenError(f"{INDEX}: columns differ from appdgen's label schema"
                            + (f" (missing {', '.join(missing)})" if missing else ""))

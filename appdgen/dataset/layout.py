@@ -30,6 +30,12 @@ OUTPUT_NAMES = (INDEX, BUILD_JSON, PARTS_DIR)
 FORMATS: dict[str, str] = {"png": ".png", "jpg": ".jpg", "npy": ".npy"}
 #: The member that is the label row minus this column (its own bytes' hash).
 HASH_COLUMN = "sha256"
+#: Each sample's crop R (crop.Crop: x0, y0, x1, y1 in undistorted normalized coordinates), so that any build's
+#: labels are a bank of labelled calibrations (Θm, R, APPD) that can be rendered again without a search.
+CROP_COLUMNS = ("crop_x0", "crop_y0", "crop_x1", "crop_y1")
+#: Columns of labels.parquet that the `<key>.json` members leave out: the hash, and the crop (added after builds
+#: had shipped; the members, hence the shards, keep their bytes).
+INDEX_ONLY = (HASH_COLUMN, *CROP_COLUMNS)
 
 
 def shard_name(index: int) -> str:
@@ -55,11 +61,12 @@ STATS_KEY = b"appdgen.shard_stats"
 STAGES = ("decode", "sample", "remap", "encode", "write")
 
 
-def label_schema(params: Sequence[str]) -> pa.Schema:
-    """labels.parquet columns for a lens model's parameters `params` (fx, fy, cx, cy, then its coefficients).
+def label_schema(params: Sequence[str], crop: bool = True) -> pa.Schema:
+    """labels.parquet columns for a lens model's parameters `params` (fx, fy, cx, cy, then its coefficients);
+    crop=False: without CROP_COLUMNS, as builds before them wrote it.
 
-    Units: parameters in raw pixels (fx…cy) or unitless (coefficients); new_* in output pixels; appd_px in raw
-    pixels, appd_pct in % of the raw diagonal.
+    Units: parameters in raw pixels (fx…cy) or unitless (coefficients); new_* in output pixels; crop_* in
+    undistorted normalized coordinates; appd_px in raw pixels, appd_pct in % of the raw diagonal.
     """
     return pa.schema([
         ("key", pa.string()), ("shard", pa.string()), ("raw_path", pa.string()), ("split", pa.string()),
@@ -68,12 +75,18 @@ def label_schema(params: Sequence[str]) -> pa.Schema:
         ("new_fx", pa.float64()), ("new_fy", pa.float64()), ("new_cx", pa.float64()), ("new_cy", pa.float64()),
         ("width", pa.int32()), ("height", pa.int32()), ("appd_px", pa.float64()), ("appd_pct", pa.float64()),
         (HASH_COLUMN, pa.string()),
+        *[(name, pa.float64()) for name in (CROP_COLUMNS if crop else ())],
     ])
 
 
+def crop_columns(x0: float, y0: float, x1: float, y1: float) -> dict[str, float]:
+    """A crop rectangle (normalized coordinates) as its CROP_COLUMNS values."""
+    return dict(zip(CROP_COLUMNS, (float(x0), float(y0), float(x1), float(y1))))
+
+
 def member_record(row: dict) -> dict:
-    """A sample's `<key>.json` content: its label row minus the image hash."""
-    return {k: v for k, v in row.items() if k != HASH_COLUMN}
+    """A sample's `<key>.json` content: its label row minus the INDEX_ONLY columns."""
+    return {k: v for k, v in row.items() if k not in INDEX_ONLY}
 
 
 def record_json(row: dict) -> bytes:

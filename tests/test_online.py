@@ -172,3 +172,29 @@ def test_online_options_errors_are_one_line(frames, tmp_path, capsys):
             main(args)
         err = capsys.readouterr().err
         assert exc.value.code == 2 and needle in err and err.count("\n") == 1, err
+
+
+def test_experiment_goes_online_without_a_training_build(tmp_path, capsys):
+    out = tmp_path / "exp"
+    main(["experiment", "--tiny", "--out", str(out), "--frames", "3", "--val-frames", "1", "--test-frames", "2",
+          "--samples", "12", "--steps", "2", "--batch", "4", "--jobs", "1", "--workers", "0", "--quiet"])
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("paper-scale: test MAE ") and "fresh pairs of 3 frames, cpu render" in line
+    build = json.loads((out / "shards" / "build.json").read_text())
+    assert build["counts"]["splits"] == {"test": 8} and build["interp"] == "cubic"  # test frames only
+    state = checkpoint.load(out / "run" / "last.pt")
+    assert state["config"]["data"]["online"] and checkpoint.rectify_rule(state)["interp"] == "cubic"
+
+
+def test_builds_from_before_the_crop_columns_still_verify(reference_build: Path, tmp_path: Path):
+    import shutil
+
+    from helpers import run_cli as appdgen
+
+    old = tmp_path / "old"
+    shutil.copytree(reference_build, old)
+    table = pq.read_table(old / "labels.parquet")
+    pq.write_table(table.drop_columns(["crop_x0", "crop_y0", "crop_x1", "crop_y1"]), old / "labels.parquet")
+    assert appdgen(["verify", str(old)]).exit_code == 0
+    pq.write_table(table.drop_columns(["crop_x0"]), old / "labels.parquet")  # half the crop: not a known schema
+    assert appdgen(["verify", str(old)]).exit_code != 0

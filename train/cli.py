@@ -137,16 +137,19 @@ def _sized(name: str, help_text: str, **kw):
 @_sized("--device", "auto, cpu or cuda.", type=click.Choice(["auto", "cpu", "cuda"]))
 @_sized("--seed", "Seed of frames, samples, weights and data order.", type=int)
 @_sized("--mount", "Synthetic camera pose spread (appdgen synth --mount).", type=click.Choice(["car", "loose"]))
+@click.option("--offline", is_flag=True,
+              help="Build every split and fit on the shards, instead of fit --online on fresh pairs of the frames.")
 @click.option("--overwrite", is_flag=True, help="Replace a previous run in --out.")
 @click.option("--quiet", is_flag=True, help="No progress lines.")
-def experiment(tiny: bool, **kw) -> None:
-    """Synthesize full-size KITTI 02 frames, build samples, fit the paper's CNN, evaluate; prints one line."""
+def experiment(tiny: bool, offline: bool, **kw) -> None:
+    """Synthesize full-size KITTI 02 frames, fit the paper's CNN on fresh pairs of them (or --offline on a build),
+    evaluate on built test frames; prints one line."""
     from train.experiment import ExperimentOptions, run, summary_line, tiny as tiny_sizes
 
     given = {k: v for k, v in kw.items() if v is not None}
     if "steps" in given:
         given["minutes"] = None
-    opts = ExperimentOptions(**{"image_format" if k == "format" else k: v for k, v in given.items()})
+    opts = ExperimentOptions(online=not offline, **{"image_format" if k == "format" else k: v for k, v in given.items()})
     result = run(tiny_sizes(opts) if tiny else opts)
     click.echo(summary_line(result))
 

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import csv
-import io
 import json
 import tarfile
 from pathlib import Path
@@ -21,7 +20,7 @@ from helpers import Setup, kitti_text, raw_image, write_png  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train.cli import main  # noqa: E402
 from train.online import (  # noqa: E402
-    OnlineOptions, PairSpec, PairStream, decode_frames, frame_sides, open_scene, pair_loader,
+    OnlineOptions, PairSpec, decode_frames, frame_sides, open_scene, pair_loader,
 )
 from appdgen.dataset.sources import RawImage  # noqa: E402
 
@@ -198,3 +197,17 @@ def test_builds_from_before_the_crop_columns_still_verify(reference_build: Path,
     assert appdgen(["verify", str(old)]).exit_code == 0
     pq.write_table(table.drop_columns(["crop_x0"]), old / "labels.parquet")  # half the crop: not a known schema
     assert appdgen(["verify", str(old)]).exit_code != 0
+
+
+@pytest.mark.heavy
+def test_online_vs_offline_benchmark_prints_its_table(tmp_path):
+    import subprocess
+    import sys
+
+    script = Path(__file__).parents[1] / "benchmarks" / "online_vs_offline.py"
+    result = subprocess.run([sys.executable, str(script), "--frames", "6", "--per-frame", "2", "--test-frames", "3",
+                             "--minutes", "1", "--batch", "8", "--out", str(tmp_path / "ovo")],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    rows = [line for line in result.stdout.splitlines() if line.startswith("| 1 |")]
+    assert len(rows) == 1 and rows[0].count("|") == 6

@@ -11,7 +11,6 @@ Validation uses fixed-seed pairs (VAL_SEED) of held-out frames, rendered once, s
 """
 from __future__ import annotations
 
-import math
 import os
 import sys
 import time
@@ -33,8 +32,8 @@ from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
 from appdgen.sampling.options import DEFAULT_ZERO_FRACTION, SamplingOptions
 from appdgen.sampling.sampler import DEFAULT_APPD_MAX
-from train import checkpoint, runtime
-from train.data import Selection, make_loader, open_shards, read_labels, StreamSpec
+from train import checkpoint
+from train.data import Selection, StreamSpec, make_loader, open_shards
 from train.errors import TrainError
 from train.model import NORMALIZE, AppdNet, ModelConfig, check_size
 

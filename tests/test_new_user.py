@@ -186,8 +186,8 @@ def test_a_build_without_shard_size_is_the_same_for_any_jobs(setup: Setup, tmp_p
 
 # --- 7. one owner per name ---------------------------------------------------------------------------------------
 
-OWNED = {'"labels.parquet"': "layout.py", '"build.json"': "layout.py", '"plan.json"': "layout.py",
-         '"shard-': "layout.py", '".parts"': "layout.py", '"npy": ".npy"': "layout.py"}
+OWNED = {'"labels.parquet"': "dataset/layout.py", '"build.json"': "dataset/layout.py", '"plan.json"': "dataset/layout.py",
+         '"shard-': "dataset/layout.py", '".parts"': "dataset/layout.py", '"npy": ".npy"': "dataset/layout.py"}
 
 
 def test_output_names_are_written_in_one_module_only() -> None:

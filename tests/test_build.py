@@ -19,7 +19,7 @@ from appdgen.util.atomic import temporary_target
 from appdgen.calib.calibration import PARAMS, Calibration
 from appdgen.geometry.crop import valid_region
 from appdgen.util.distribute import run_unordered
-from appdgen.dataset.layout import STAGES
+from appdgen.dataset.layout import STAGES, member_record
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
 from helpers import (Setup, assert_killed_build_sound, assert_one_line_error, assert_same_build, assert_shard_complete,
@@ -126,6 +126,7 @@ LABEL_COLUMNS = [
     ("sample_index", "int64"), ("is_reference", "bool"),
     *[(name, "double") for name in (*PARAMS, "new_fx", "new_fy", "new_cx", "new_cy")],
     ("width", "int32"), ("height", "int32"), ("appd_px", "double"), ("appd_pct", "double"), ("sha256", "string"),
+    *[(name, "double") for name in ("crop_x0", "crop_y0", "crop_x1", "crop_y1")],
 ]
 BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "images_sha256", "channels", "max_fov", "samples", "size", "format", "shard_size", "seed",
                    "appd_max", "zero_fraction", "interp", "ranges", "command", "counts", "shards", "sampler",
@@ -151,6 +152,8 @@ def test_labels_are_the_full_grid_appd_of_the_stored_parameters(reference_build:
         assert (row["width"], row["height"], row["camera"]) == (*SIZE, "02")
         assert [row[k] for k in ("new_fx", "new_fy", "new_cx", "new_cy")] == rect.new_camera_matrix[
             [0, 1, 0, 1], [0, 1, 2, 2]].tolist()
+        crop = rect.crop
+        assert [row[k] for k in ("crop_x0", "crop_y0", "crop_x1", "crop_y1")] == [crop.x0, crop.y0, crop.x1, crop.y1]
         assert row["appd_px"] == appd(small_camera, calib, SIZE)[0]
         assert row["appd_pct"] == row["appd_px"] * 100 / small_camera.diagonal
         assert (calib == small_camera) == row["is_reference"]
@@ -194,7 +197,7 @@ def test_shards_read_with_plain_webdataset(reference_build: Path, tmp_path: Path
     assert [s["key"] for s in samples] == [r["key"] for r in rows]
     for sample, row in zip(samples, rows):
         assert sample["shape"] == [32, 87, 3] and sample["sha256"] == row["sha256"]
-        assert sample["label"] == {k: v for k, v in row.items() if k != "sha256"}
+        assert sample["label"] == member_record(row)
 
 
 # --- splits -----------------------------------------------------------------------------------------------------

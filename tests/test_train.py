@@ -404,8 +404,9 @@ def test_pixel_normalisation_subtracts_the_mean_training_image(shards, tmp_path,
 def test_experiment_runs_every_stage_and_prints_one_line(tmp_path, capsys):
     # The tiny mode's code path at smaller sizes (make paper-scale-tiny runs the real tiny sizes).
     out = tmp_path / "exp"
-    line = run_cli(["experiment", "--tiny", "--out", out, "--frames", 3, "--val-frames", 1, "--test-frames", 2,
-                    "--samples", 12, "--steps", 2, "--batch", 4, "--jobs", 1, "--quiet"], capsys).strip()
+    line = run_cli(["experiment", "--tiny", "--offline", "--out", out, "--frames", 3, "--val-frames", 1,
+                    "--test-frames", 2, "--samples", 12, "--steps", 2, "--batch", 4, "--jobs", 1, "--quiet"],
+                   capsys).strip()
     assert line.count("\n") == 0 and line.startswith("paper-scale: test MAE ")
     for stage in ("synth", "build", "fit", "evaluate", "total"):
         assert f"{stage} " in line

@@ -19,8 +19,51 @@ def cli() -> None:
     """Train and use a CNN that predicts APPD (% of image diagonal) from appdgen's shards."""
 
 
+def online_options(command):
+    """fit's --online options: raw frames and a calibration, drawn and rendered as `appdgen build` would."""
+    from appdgen.cli.base import CALIB_HELP, IMAGES_HELP, camera_option, sampling_options, size_option, split_by_option
+    from train.online import RENDERS
+
+    options = [
+        click.option("--online", is_flag=True,
+                     help="Train on fresh (frame, calibration) pairs drawn as it goes, from --calib and --images, "
+                          "instead of --shards."),
+        click.option("--calib", default=None, type=click.Path(dir_okay=False), help=CALIB_HELP),
+        camera_option, click.option("--images", default=None, help=IMAGES_HELP), split_by_option, size_option,
+        sampling_options,
+        click.option("--render", default="auto", show_default=True, type=click.Choice(list(RENDERS)),
+                     help="Where --online rectifies: cpu = loader workers with OpenCV, as build; device = the "
+                          "training device (grid_sample; no lanczos4); auto = device on CUDA, else cpu."),
+        click.option("--val-shards", default=None,
+                     help="--online: validate on this offline build (its val split, else its only split) instead "
+                          "of fixed-seed pairs of held-out frames."),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
+def online_from(kw: dict) -> None:
+    """Move the --online options out of fit's keywords into kw['online'] (an OnlineOptions, or None)."""
+    from train.online import OnlineOptions
+
+    names = [f for f in OnlineOptions.__dataclass_fields__]
+    values = {n: kw.pop(n) for n in names}
+    online = kw.pop("online")
+    if not online:
+        given = [n for n in ("calib", "images", "val_shards") if values[n] is not None]
+        if given:
+            raise TrainError(f"--{given[0].replace('_', '-')} needs --online")
+        kw["online"] = None
+        return
+    missing = [n for n in ("calib", "images") if values[n] is None]
+    if missing:
+        raise TrainError(f"--online needs --{missing[0]}")
+    kw["online"] = OnlineOptions(**values)
+
+
 @cli.command()
-@click.option("--shards", required=True, help="Folder written by `appdgen build` (its shards, label table and summary).")
+@click.option("--shards", default=None, help="Folder written by `appdgen build` (its shards, label table and summary).")
 @click.option("--run", "--run-dir", "run", required=True,
               help="Run folder: last.pt, best.pt, log.csv, config.json (--run-dir under torchrun, which claims --run).")
 @click.option("--split", default="train", show_default=True,
@@ -56,10 +99,12 @@ def cli() -> None:
 @click.option("--normalize", default="channel", show_default=True, type=click.Choice(["channel", "pixel"]),
               help="Input normalisation: per-channel mean/std, or the released code's per-pixel mean image.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
+@online_options
 def fit(**kw) -> None:
-    """Train on one split of the shards; prints a JSON summary."""
+    """Train on one split of the shards (or --online on fresh pairs); prints a JSON summary."""
     from train.fit import FitOptions, fit as run_fit
 
+    online_from(kw)
     summary = run_fit(FitOptions(**kw))
     if summary is not None:  # rank 0 only under torchrun
         click.echo(json.dumps(summary))
@@ -94,16 +139,19 @@ def _sized(name: str, help_text: str, **kw):
 @_sized("--device", "auto, cpu or cuda.", type=click.Choice(["auto", "cpu", "cuda"]))
 @_sized("--seed", "Seed of frames, samples, weights and data order.", type=int)
 @_sized("--mount", "Synthetic camera pose spread (appdgen synth --mount).", type=click.Choice(["car", "loose"]))
+@click.option("--offline", is_flag=True,
+              help="Build every split and fit on the shards, instead of fit --online on fresh pairs of the frames.")
 @click.option("--overwrite", is_flag=True, help="Replace a previous run in --out.")
 @click.option("--quiet", is_flag=True, help="No progress lines.")
-def experiment(tiny: bool, **kw) -> None:
-    """Synthesize full-size KITTI 02 frames, build samples, fit the paper's CNN, evaluate; prints one line."""
+def experiment(tiny: bool, offline: bool, **kw) -> None:
+    """Synthesize full-size KITTI 02 frames, fit the paper's CNN on fresh pairs of them (or --offline on a build),
+    evaluate on built test frames; prints one line."""
     from train.experiment import ExperimentOptions, run, summary_line, tiny as tiny_sizes
 
     given = {k: v for k, v in kw.items() if v is not None}
     if "steps" in given:
         given["minutes"] = None
-    opts = ExperimentOptions(**{"image_format" if k == "format" else k: v for k, v in given.items()})
+    opts = ExperimentOptions(online=not offline, **{"image_format" if k == "format" else k: v for k, v in given.items()})
     result = run(tiny_sizes(opts) if tiny else opts)
     click.echo(summary_line(result))
 

@@ -11,6 +11,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 import torch.nn.functional as F
@@ -25,6 +26,9 @@ from train.data import (
 from train.errors import TrainError
 from train.model import NORMALIZE, AppdNet, ModelConfig, check_size
 
+if TYPE_CHECKING:
+    from train.online import OnlineOptions
+
 #: Options that fix the order samples arrive in; a resume with the same ones continues the data exactly.
 RESUME_SAME = ("batch", "workers", "seed", "shuffle_buffer")
 LOG_COLUMNS = ("step", "train_loss", "val_loss", "val_mae", "lr", "images_per_s")
@@ -34,7 +38,7 @@ LOG_COLUMNS = ("step", "train_loss", "val_loss", "val_mae", "lr", "images_per_s"
 class FitOptions:
     """Everything `python -m train fit` takes; stored in the checkpoint as plain values."""
 
-    shards: str
+    shards: str | None  # an offline build; None with `online`
     run: str
     split: str = "train"
     val_split: str = "auto"  # a split name, "auto" (val if present, else holdout) or "none"
@@ -58,6 +62,7 @@ class FitOptions:
     stats_samples: int = 256
     normalize: str = "channel"  # "channel": per-channel mean/std; "pixel": a per-pixel mean image, channel std
     quiet: bool = False
+    online: "OnlineOptions | None" = None  # train on fresh pairs drawn as it goes (train.online), not shards
 
 
 @dataclass(frozen=True)
@@ -187,16 +192,26 @@ def _train_label_mean(labels: dict, sel: Selection) -> float:
     return sum(vals) / len(vals)
 
 
-def load_or_init(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOptions, run: Path) -> dict:
-    """The checkpoint to start from: run/last.pt with --resume, else a fresh one (never overwrites)."""
+def resumed(run: Path, opts: FitOptions) -> dict | None:
+    """run/last.pt with --resume, None to start fresh; refuses to overwrite a run without --resume."""
     last = run / "last.pt"
     if last.exists() and not opts.resume:
         raise TrainError(f"{last} exists: pass --resume to continue it, or choose another --run")
     if not last.exists():
         if opts.resume:
             print(f"fit: --resume but no {last}; starting fresh", file=sys.stderr)
+        return None
+    return checkpoint.load(last)
+
+
+def load_or_init(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOptions, run: Path) -> dict:
+    """The checkpoint to start from: run/last.pt with --resume, else a fresh one (never overwrites)."""
+    state = resumed(run, opts)
+    if state is None:
         return new_state(ss, labels, plan, opts)
-    state = checkpoint.load(last)
+    last = run / "last.pt"
+    if state["config"].get("data", {}).get("online"):
+        raise TrainError(f"{last}: an --online run; resume it with --online, or choose another --run")
     started = state["config"].get("fit", {})
     changed = [k for k in RESUME_SAME if k in started and started[k] != getattr(opts, k)]
     if changed:
@@ -280,20 +295,33 @@ def fit(opts: FitOptions) -> dict | None:
     runtime.setup_threads(device)
     runtime.init_distributed(device)
     rank, world = runtime.rank(), runtime.world_size()
+    run = Path(opts.run)
+    if opts.online is not None:
+        from train.online import online_trainer
+
+        trainer, steps = online_trainer(opts, device, rank, world, run)
+    else:
+        trainer, steps = shard_trainer(opts, device, rank, world, run)
+    try:
+        summary = trainer.train(steps)
+    finally:
+        runtime.finish_distributed()
+    return summary if rank == 0 else None
+
+
+def shard_trainer(opts: FitOptions, device: torch.device, rank: int, world: int, run: Path) -> tuple["Trainer", int]:
+    """(the Trainer of a run on an offline build, its total steps)."""
+    if not opts.shards:
+        raise TrainError("give --shards (a build folder), or --online with --calib and --images")
     ss = open_shards(opts.shards)
     opts = only_split(ss, opts)
     labels = read_labels(ss.root)
     plan = plan_data(ss, labels, opts)
     steps = total_steps(opts, plan.n_train, world)
-    run = Path(opts.run)
     if rank == 0:
         run.mkdir(parents=True, exist_ok=True)
     state = load_or_init(ss, labels, plan, opts, run)
-    try:
-        summary = Trainer(opts, ss, plan, state, device, rank, world, run).train(steps)
-    finally:
-        runtime.finish_distributed()
-    return summary if rank == 0 else None
+    return Trainer(opts, ss, plan, state, device, rank, world, run), steps
 
 
 class Trainer:
@@ -310,6 +338,8 @@ class Trainer:
             self.opt.load_state_dict(state["optimizer"])
             for group in self.opt.param_groups:
                 group["lr"] = opts.lr  # a resumed run takes the lr given now
+        if state.get("rng") is not None:
+            torch.set_rng_state(state["rng"])  # dropout continues as it would have: a resume repeats the losses
         self.net = self.model
         if world > 1:
             from torch.nn.parallel import DistributedDataParallel
@@ -405,7 +435,8 @@ class Trainer:
         """Checkpoint (rank 0 only; no collective, so safe inside rank-0-only code), atomically replaced."""
         if self.rank != 0:
             return
-        self.state.update(step=step, model=self.model.state_dict(), optimizer=self.opt.state_dict())
+        self.state.update(step=step, model=self.model.state_dict(), optimizer=self.opt.state_dict(),
+                          rng=torch.get_rng_state())
         checkpoint.save(path or self.run / "last.pt", self.state)
         if path is None:
             (self.run / "config.json").write_text(json.dumps(self.state["config"], indent=1))

@@ -14,6 +14,7 @@ import click
 from appdgen.version import __version__
 from appdgen.calib.calibration import Calibration
 from appdgen.errors import AppdgenError
+from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
 
 
 def fail_cleanly(command: Callable) -> Callable:
@@ -94,9 +95,22 @@ def modified(calib: Calibration, sets: tuple[str, ...], perturbs: tuple[str, ...
     return calib.perturb(**parse_assignments("--perturb", perturbs, calib))
 
 
-calib_option = click.option("--calib", "calib_path", required=True, type=click.Path(dir_okay=False),
-                            help="Calibration file (KITTI, OpenCV YAML/XML, ROS, Kalibr, EuRoC, Basalt, nuScenes, "
-                                 "appdgen JSON), any lens model.")
+CALIB_HELP = ("Calibration file (KITTI, OpenCV YAML/XML, ROS, Kalibr, EuRoC, Basalt, nuScenes, appdgen JSON), any "
+              "lens model.")
+calib_option = click.option("--calib", "calib_path", required=True, type=click.Path(dir_okay=False), help=CALIB_HELP)
+
+IMAGES_HELP = ("Raw images: a folder (recursive), a glob pattern, or a list file ('PATH [SPLIT]' per line, or "
+               "'PATH<TAB>SPLIT' for paths with spaces); or a recording: a ROS 1 .bag, a ROS 2 bag folder or "
+               ".db3/.mcap file (appdgen[ros]), a video file (appdgen[video]).")
+
+
+def split_by_option(command: Callable) -> Callable:
+    """--split-by: the split column from each raw image's path (build's, and fit --online's holdout)."""
+    from appdgen.dataset.sources import SPLIT_BY
+
+    return click.option("--split-by", default="none", type=click.Choice(list(SPLIT_BY)), show_default=True,
+                        help="Split column from the path: first folder, KITTI day, KITTI drive, or recording (each "
+                             "bag or video; for images their folder); list files may name splits.")(command)
 
 
 camera_option = click.option("--camera", default=None, help="Camera in the file, e.g. 02 for KITTI image_02.")
@@ -123,6 +137,35 @@ max_fov_option = click.option(
 
 size_option = click.option("--size", default=None, metavar="WxH",
                            help="Output size in pixels (default: the raw size; must keep the raw aspect).")
+
+
+interp_option = click.option("--interp", default=DEFAULT_INTERP, type=click.Choice(list(INTERPOLATIONS)),
+                             show_default=True, help="Interpolation of the remap.")
+
+
+def sampling_options(command: Callable) -> Callable:
+    """--ranges, --appd-max, --zero-fraction, --max-fov and --interp (sampling.options.SamplingOptions): the same
+    names, defaults and help for `appdgen build` and `python -m train fit --online`."""
+    from appdgen.sampling.options import DEFAULT_ZERO_FRACTION
+    from appdgen.sampling.sampler import DEFAULT_APPD_MAX
+
+    options = [
+        click.option("--ranges", default=None, metavar="NAME=LO:HI,...",
+                     help="Override ranges of the lens model's parameters: '%' bounds are relative to the reference "
+                          "(fx=-5%:20%), bare ones absolute (k3=-0.01:0.01). Defaults: focal -5%:20%, principal "
+                          "point -5%:5%, non-zero coefficients -15%:15% (zero ones: none for radtan, see the README "
+                          "otherwise)."),
+        click.option("--appd-max", default=DEFAULT_APPD_MAX, show_default=True,
+                     help="Largest APPD label, % of the raw diagonal; refused up front when the ranges cannot reach "
+                          "it."),
+        click.option("--zero-fraction", default=DEFAULT_ZERO_FRACTION, show_default=True,
+                     help="Fraction of samples that are exactly Θ*."),
+        max_fov_option,
+        interp_option,
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
 
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")

@@ -8,7 +8,9 @@ import click
 
 from appdgen.cli.base import (
     fail_cleanly,
-    max_fov_option,
+    sampling_options,
+    split_by_option,
+    IMAGES_HELP,
     parse_size,
     load_calibration,
     calib_option,
@@ -19,8 +21,6 @@ from appdgen.cli.base import (
 from appdgen.util.distribute import BACKENDS
 from appdgen.errors import AppdgenError
 from appdgen.dataset.layout import BUILD_JSON, FORMATS
-from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
-from appdgen.dataset.sources import SPLIT_BY
 from appdgen.dataset.recordings import CHANNELS
 from appdgen.synth.recording import KINDS as RECORDING_KINDS
 
@@ -72,9 +72,7 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
 @main.command()
 @calib_option
 @camera_option
-@click.option("--images", "images_spec", required=True,
-              help="Raw images: a folder (recursive), a glob pattern, or a list file ('PATH [SPLIT]' per line, or "
-                   "'PATH<TAB>SPLIT' for paths with spaces).")
+@click.option("--images", "images_spec", required=True, help=IMAGES_HELP)
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--samples", type=int, default=None, help="Total samples [default: 10 per image].")
 @click.option("--per-image", type=int, default=None, help="Samples per raw image (instead of --samples).")
@@ -86,19 +84,8 @@ def choose_camera(calib_path: str, camera: str | None, images) -> str:
 @click.option("--jobs", type=int, default=None,
               help="Worker processes, as joblib's n_jobs: -1 all cores, -2 all but one, … [default: all cores].")
 @click.option("--seed", default=0, show_default=True, help="Build seed: the same seed gives the same bytes.")
-@click.option("--ranges", default=None, metavar="NAME=LO:HI,...",
-              help="Override ranges of the lens model's parameters: '%' bounds are relative to the reference "
-                   "(fx=-5%:20%), bare ones absolute (k3=-0.01:0.01). Defaults: focal -5%:20%, principal point "
-                   "-5%:5%, non-zero coefficients -15%:15% (zero ones: none for radtan, see the README otherwise).")
-@click.option("--appd-max", default=1.0, show_default=True,
-              help="Largest APPD label, % of the raw diagonal; refused up front when the ranges cannot reach it.")
-@click.option("--zero-fraction", default=0.01, show_default=True, help="Fraction of samples that are exactly Θ*.")
-@max_fov_option
-@click.option("--interp", default=DEFAULT_INTERP, type=click.Choice(list(INTERPOLATIONS)), show_default=True,
-              help="Interpolation of the remap.")
-@click.option("--split-by", default="none", type=click.Choice(list(SPLIT_BY)), show_default=True,
-              help="Split column from the path: first folder, KITTI day, KITTI drive, or recording (each bag or video; "
-                   "for images their folder); list files may name splits.")
+@sampling_options
+@split_by_option
 @click.option("--skip-bad", is_flag=True,
               help="Skip images (or frames) of the wrong size, truncated, unreadable or with alpha channels, listing "
                    f"each in {BUILD_JSON} (else the first is an error).")
@@ -121,7 +108,7 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
     from appdgen.dataset.build import BuildConfig, build as run_build
     from appdgen.util.distribute import resolve_jobs
-    from appdgen.sampling.ranges import parse_ranges
+    from appdgen.sampling.options import SamplingOptions
     from appdgen.calib.formats import calibration_topic
     from appdgen.dataset.recordings import FrameChoice, list_recordings, raw_images, resolve_channels
     from appdgen.dataset.recordings import choose_camera as choose_recording_camera
@@ -155,8 +142,8 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     config = BuildConfig(
         reference=reference, camera=camera, calib_path=calib_path, images=tuple(images), samples=total,
         size=parse_size(size) or reference.size, image_format=image_format, shard_size=shard_size, seed=seed,
-        ranges=parse_ranges(ranges, reference), appd_max=appd_max, zero_fraction=zero_fraction, interp=interp,
-        max_fov=max_fov, channels=resolve_channels(channels_choice, mono), recordings=recordings,
+        **SamplingOptions.parse(reference, ranges, appd_max, zero_fraction, max_fov, interp).build_fields(reference),
+        channels=resolve_channels(channels_choice, mono), recordings=recordings,
     )
     summary = run_build(config, Path(out_dir), workers, backend, scheduler, resume, overwrite,
                         progress=not quiet, command=["appdgen", *sys.argv[1:]], skipped=skipped)

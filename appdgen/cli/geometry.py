@@ -7,7 +7,6 @@ from pathlib import Path
 import click
 
 from appdgen.calib.calibration import Calibration
-from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
 from appdgen.cli.base import (
     fail_cleanly,
     parse_size,
@@ -18,6 +17,7 @@ from appdgen.cli.base import (
     set_option,
     perturb_option,
     size_option,
+    interp_option,
     max_fov_option,
     json_option,
     main,
@@ -84,8 +84,7 @@ def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size,
 @perturb_option
 @size_option
 @max_fov_option
-@click.option("--interp", default=DEFAULT_INTERP, type=click.Choice(list(INTERPOLATIONS)),
-              show_default=True, help="Interpolation of the remap.")
+@interp_option
 @click.argument("image", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output image (PNG, JPG…).")
 @fail_cleanly

@@ -32,12 +32,13 @@ from appdgen.util.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.dataset.images import as_channels, encode_image, read_image
 from appdgen.dataset.layout import (FORMATS, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES, ShardStats,
-                                    sample_key, shard_name)
+                                    crop_columns, sample_key, shard_name)
 from appdgen.geometry.maps import Rectification
 from appdgen.util.progress import Progress
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
 from appdgen.sampling.ranges import Range, default_ranges
 from appdgen.sampling.reach import UnreachableError
+from appdgen.sampling.options import DEFAULT_ZERO_FRACTION, SamplingOptions
 from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Sampler
 from appdgen.dataset.shards import BuildWriter
 from appdgen.dataset.sources import RawImage, check_complete
@@ -83,7 +84,7 @@ class BuildConfig:
     seed: int = 0
     ranges: dict[str, Range] | None = None  # default_ranges(reference)
     appd_max: float = DEFAULT_APPD_MAX
-    zero_fraction: float = 0.01
+    zero_fraction: float = DEFAULT_ZERO_FRACTION
     interp: str = DEFAULT_INTERP
     max_fov: float | None = None  # degrees: bounds the horizontal field of view of every crop
     channels: int = 3  # of the samples: 1 grey, 3 BGR
@@ -145,10 +146,15 @@ class BuildConfig:
         """The raw image of sample `index`: consecutive blocks per image, so a shard decodes few images."""
         return self.images[index * len(self.images) // self.samples]
 
+    @property
+    def sampling(self) -> SamplingOptions:
+        """The build's sampling options (the type `fit --online` shares)."""
+        return SamplingOptions(tuple(sorted(self.ranges.items())), self.appd_max, self.zero_fraction, self.max_fov,
+                               self.interp)
+
     def sampler(self) -> Sampler:
         """The build's labelling sampler (set up once per process and build options)."""
-        return _sampler(self.reference, tuple(sorted(self.ranges.items())), self.appd_max, self.zero_fraction,
-                        self.size, self.max_fov)
+        return self.sampling.sampler(self.reference, self.size)
 
     def plan(self) -> dict:
         """A JSON-ready description of everything that shapes the output, by content: the calibration file's
@@ -204,13 +210,6 @@ def plan_content(record: dict) -> dict:
     if isinstance(calibration, dict):
         content["calibration"] = {k: v for k, v in calibration.items() if k != "path"}
     return content
-
-
-@functools.lru_cache(maxsize=2)
-def _sampler(reference: Calibration, ranges: tuple, appd_max: float, zero_fraction: float, size: tuple[int, int],
-             max_fov: float | None) -> Sampler:
-    """A worker's labelling sampler, kept for the next shard of the same build (its set-up costs ~12 ms)."""
-    return Sampler(reference, dict(ranges), appd_max, zero_fraction, size, max_fov=max_fov, labels=True)
 
 
 def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dict]]:
@@ -319,6 +318,7 @@ def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_
         "new_fx": float(k[0, 0]), "new_fy": float(k[1, 1]), "new_cx": float(k[0, 2]), "new_cy": float(k[1, 2]),
         "width": config.size[0], "height": config.size[1],
         "appd_px": distance_px, "appd_pct": px_to_pct(distance_px, config.reference),
+        **crop_columns(rect.crop.x0, rect.crop.y0, rect.crop.x1, rect.crop.y1),
         **(image.frame.columns() if image.frame is not None else {}),
     }
 

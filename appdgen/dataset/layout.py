@@ -39,6 +39,12 @@ LABEL_COLUMN = "appd_pct"
 #: The extension of a sample's label member (`<key>.json`).
 RECORD_EXT = ".json"
 RECORD_FIELD = RECORD_EXT.lstrip(".")  # … as WebDataset names that field
+#: Each sample's crop R (crop.Crop: x0, y0, x1, y1 in undistorted normalized coordinates), so that any build's
+#: labels are a bank of labelled calibrations (Θm, R, APPD) that can be rendered again without a search.
+CROP_COLUMNS = ("crop_x0", "crop_y0", "crop_x1", "crop_y1")
+#: Columns of labels.parquet that the `<key>.json` members leave out: the hash, and the crop (added after builds
+#: had shipped; the members, hence the shards, keep their bytes).
+INDEX_ONLY = (HASH_COLUMN, *CROP_COLUMNS)
 
 
 def shard_name(index: int) -> str:
@@ -75,12 +81,13 @@ STAGES = ("decode", "sample", "remap", "encode", "write")
 SOURCE_COLUMNS = (("source", "string"), ("topic", "string"), ("timestamp_ns", "int64"), ("frame", "int64"))
 
 
-def label_schema(params: Sequence[str], sources: bool = False) -> pa.Schema:
+def label_schema(params: Sequence[str], sources: bool = False, crop: bool = True) -> pa.Schema:
     """labels.parquet columns for a lens model's parameters `params` (fx, fy, cx, cy, then its coefficients),
-    with SOURCE_COLUMNS for a build from recordings (`sources`).
+    with SOURCE_COLUMNS for a build from recordings (`sources`); crop=False: without CROP_COLUMNS, as builds
+    before them wrote it.
 
-    Units: parameters in raw pixels (fx…cy) or unitless (coefficients); new_* in output pixels; appd_px in raw
-    pixels, appd_pct in % of the raw diagonal.
+    Units: parameters in raw pixels (fx…cy) or unitless (coefficients); new_* in output pixels; crop_* in
+    undistorted normalized coordinates; appd_px in raw pixels, appd_pct in % of the raw diagonal.
     """
     import pyarrow as pa  # here, not at the top: the image codecs and synth import this module for FORMATS alone
 
@@ -91,13 +98,19 @@ def label_schema(params: Sequence[str], sources: bool = False) -> pa.Schema:
         ("new_fx", pa.float64()), ("new_fy", pa.float64()), ("new_cx", pa.float64()), ("new_cy", pa.float64()),
         ("width", pa.int32()), ("height", pa.int32()), ("appd_px", pa.float64()), ("appd_pct", pa.float64()),
         (HASH_COLUMN, pa.string()),
+        *[(name, pa.float64()) for name in (CROP_COLUMNS if crop else ())],
         *((name, getattr(pa, kind)()) for name, kind in (SOURCE_COLUMNS if sources else ())),
     ])
 
 
+def crop_columns(x0: float, y0: float, x1: float, y1: float) -> dict[str, float]:
+    """A crop rectangle (normalized coordinates) as its CROP_COLUMNS values."""
+    return dict(zip(CROP_COLUMNS, (float(x0), float(y0), float(x1), float(y1))))
+
+
 def member_record(row: dict) -> dict:
-    """A sample's `<key>.json` content: its label row minus the image hash."""
-    return {k: v for k, v in row.items() if k != HASH_COLUMN}
+    """A sample's `<key>.json` content: its label row minus the INDEX_ONLY columns."""
+    return {k: v for k, v in row.items() if k not in INDEX_ONLY}
 
 
 def record_json(row: dict) -> bytes:

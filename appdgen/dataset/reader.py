@@ -75,12 +75,13 @@ def model_params(info: dict) -> tuple[str, ...]:
 def read_index(out: Path, info: dict, columns: Sequence[str] | None = None) -> pa.Table:
     """labels.parquet with the label schema of build.json's lens model (only `columns` when given); AppdgenError
     naming the file otherwise."""
-    schema = label_schema(model_params(info), sources=from_recordings(info))
+    params, sources = model_params(info), from_recordings(info)
+    schema = label_schema(params, sources)
     try:
         table = pq.read_table(out / INDEX)
     except (OSError, pa.ArrowException) as exc:
         raise AppdgenError(f"{INDEX}: unreadable ({exc})") from None
-    if not table.schema.equals(schema):
+    if not (table.schema.equals(schema) or table.schema.equals(label_schema(params, sources, crop=False))):
         missing = [n for n in schema.names if n not in table.schema.names]
         raise AppdgenError(f"{INDEX}: columns differ from appdgen's label schema"
                            + (f" (missing {', '.join(missing)})" if missing else ""))

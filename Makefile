@@ -9,7 +9,7 @@ DEMO := demo
 # The CPU build of torch (an unpinned torch pulls a multi-GB CUDA build).
 TORCH := torch==2.13.0
 
-.PHONY: demo test test-core test-fast test-heavy train train-one-scene paper-scale paper-scale-tiny device-wheels bench bench-synth bench-rss clean
+.PHONY: demo test test-core test-fast test-heavy train train-one-scene paper-scale paper-scale-tiny device-wheels bench bench-synth bench-render bench-rss clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -89,6 +89,10 @@ bench: $(STAMP)
 # Frames/s of appdgen synth for 1 and 2 jobs at full and quarter size, CPU s/frame, identical bytes (~1.5 min).
 bench-synth: $(STAMP)
 	$(PY) benchmarks/bench_synth.py --frames-full 32 --frames-quarter 128 --trials 2
+
+# Images/s of the cpu (cv2.remap) and device (grid_sample) renderers at 348x128 and 1392x512 against a training step.
+bench-render: $(TRAIN_STAMP)
+	$(PY) benchmarks/bench_render.py --repeat 5
 
 bench-rss: $(STAMP)
 	$(PY) benchmarks/bench_build.py --rss-only

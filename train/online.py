@@ -111,6 +111,12 @@ class Scene:
 
 def open_scene(o: OnlineOptions) -> tuple[Scene, list[RawImage]]:
     """The calibration, size, sampling options (checked: reachable --appd-max) and the listed raw images."""
+    from appdgen.dataset.recordings import is_recording
+
+    if is_recording(Path(o.images)):
+        raise TrainError(f"--images {o.images}: fit --online takes image files (a folder, a glob or a list file), "
+                         "not a recording yet; build it first (appdgen build --images ... --out OUT, then fit "
+                         "--shards OUT) or export its frames")
     try:
         images = list_images(o.images, o.split_by)
         camera = o.camera

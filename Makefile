@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 
 $(TRAIN_STAMP): $(STAMP)
 	$(PY) -m pip install -q '$(TORCH)'
-	$(PY) -m pip install -q -e '.[test,train,plot,dask]'
+	$(PY) -m pip install -q -e '.[test,train,plot,dask,ros,video]'
 	touch $(TRAIN_STAMP)
 
 # Synthetic street frames of a quarter-size KITTI camera 02, split by folder, then ~2,000 labelled samples.
@@ -30,7 +30,8 @@ demo: $(STAMP)
 		--samples 2000 --shard-size 250 --out $(DEMO)/shards --overwrite
 	$(APPDGEN) inspect $(DEMO)/shards --sheet $(DEMO)/sheet.png
 
-# The trainer's tests need torch: the CPU build is installed too (see TORCH).
+# The trainer's tests need torch: the CPU build is installed too (see TORCH); the recordings' tests need the ros and
+# video extras (rosbags, PyAV), installed with it.
 test: $(TRAIN_STAMP)
 	$(PY) -m pytest -q
 

@@ -12,6 +12,10 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+# The recordings' extras (appdgen[ros], appdgen[video]): make test installs them; without them these tests skip.
+pytest.importorskip("rosbags")
+pytest.importorskip("av")
+
 from appdgen.synth.recording import START_NS, FRAME_PERIOD_NS, write_bag, write_video
 from helpers import (assert_one_line_error, assert_same_build, kill_group, kitti_text, raw_image, run_cli,
                      run_with_full_disk, shard_members, spawn_cli, write_png)

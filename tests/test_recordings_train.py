@@ -8,6 +8,8 @@ import cv2
 import pytest
 
 torch = pytest.importorskip("torch")
+pytest.importorskip("rosbags")  # appdgen[ros]
+pytest.importorskip("av")  # appdgen[video]
 
 from appdgen.synth.recording import FRAME_PERIOD_NS, START_NS, write_bag, write_video  # noqa: E402
 from helpers import kitti_text, raw_image, run_cli, scaled  # noqa: E402

@@ -166,9 +166,7 @@ def test_online_options_errors_are_one_line(frames, tmp_path, capsys):
     for args, needle in ((["fit", "--online", "--images", str(images), "--run", str(tmp_path / "a"), "--steps", "1"],
                           "--calib"),
                          (["fit", "--calib", str(calib), "--run", str(tmp_path / "b"), "--steps", "1"], "--online"),
-                         (fit_args(frames, tmp_path / "c", "--steps", 1, "--appd-max", 50), "--appd-max"),
-                         (["fit", "--online", "--calib", str(calib), "--images", str(tmp_path / "run.bag"), "--run",
-                           str(tmp_path / "d"), "--steps", "1"], "not a recording yet")):
+                         (fit_args(frames, tmp_path / "c", "--steps", 1, "--appd-max", 50), "--appd-max")):
         with pytest.raises(SystemExit) as exc:
             main(args)
         err = capsys.readouterr().err

@@ -5,6 +5,7 @@ import json
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
@@ -77,3 +78,17 @@ def test_export_takes_one_channel(mono_run: Path, tmp_path: Path, capsys) -> Non
     main(["export", "--ckpt", str(mono_run / "run" / "last.pt"), "--pt2", str(tmp_path / "m.pt2")])
     program = torch.export.load(str(tmp_path / "m.pt2")).module()
     assert program(torch.rand(2, 1, 128, 348)).shape == (2,)
+
+
+def test_fit_online_trains_on_a_bags_frames(mono_run: Path, kitti_quarter, tmp_path: Path, capsys) -> None:
+    from appdgen.dataset.inputs import resolve_inputs
+    from train.online import decode_frames
+
+    calib, bag = str(mono_run / "calib.txt"), str(mono_run / "mono.bag")
+    inputs = resolve_inputs(bag, calib, "02")
+    grey = [cv2.cvtColor(raw_image(kitti_quarter.size, i), cv2.COLOR_BGR2GRAY) for i in range(FRAMES)]
+    held = decode_frames(list(inputs.images))  # the bag's frames, in order, grey ones as BGR (online is colour)
+    assert np.array_equal(held, np.stack([cv2.cvtColor(g, cv2.COLOR_GRAY2BGR) for g in grey]))
+    main(["fit", "--online", "--calib", calib, "--camera", "02", "--images", bag, "--run", str(tmp_path / "run"),
+          "--steps", "1", "--batch", "2", "--workers", "0", "--val-split", "none", "--quiet"])
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["step"] == 1

@@ -24,9 +24,10 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from appdgen.calib.calibration import Calibration
-from appdgen.cli.base import load_calibration, parse_size
+from appdgen.cli.base import parse_size
 from appdgen.dataset.images import read_image
-from appdgen.dataset.sources import RawImage, check_images, list_images
+from appdgen.dataset.inputs import read_frames, resolve_inputs
+from appdgen.dataset.sources import RawImage
 from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
@@ -111,21 +112,9 @@ class Scene:
 
 def open_scene(o: OnlineOptions) -> tuple[Scene, list[RawImage]]:
     """The calibration, size, sampling options (checked: reachable --appd-max) and the listed raw images."""
-    from appdgen.dataset.recordings import is_recording
-
-    if is_recording(Path(o.images)):
-        raise TrainError(f"--images {o.images}: fit --online takes image files (a folder, a glob or a list file), "
-                         "not a recording yet; build it first (appdgen build --images ... --out OUT, then fit "
-                         "--shards OUT) or export its frames")
     try:
-        images = list_images(o.images, o.split_by)
-        camera = o.camera
-        if camera is None:
-            from appdgen.cli.dataset import choose_camera
-
-            camera = choose_camera(o.calib, None, images)
-        reference = load_calibration(o.calib, camera)
-        images, _ = check_images(images, reference.size, skip_bad=False)
+        inputs = resolve_inputs(o.images, o.calib, o.camera, o.split_by, check_grey=False)
+        reference, camera, images = inputs.reference, inputs.camera, list(inputs.images)
         from appdgen.geometry.crop import check_output_size, valid_region
 
         size = check_output_size(reference, parse_size(o.size) or reference.size)
@@ -176,9 +165,15 @@ class _Holdout:
 
 
 def decode_frames(images: list[RawImage], threads: int | None = None) -> np.ndarray:
-    """All frames as one N×H×W×3 uint8 array (BGR), decoded in threads (OpenCV releases the GIL)."""
+    """All frames as one N×H×W×3 uint8 array (BGR): image files decoded in threads (OpenCV releases the GIL), frames
+    of recordings (bags, videos; grey ones as BGR) in one pass per recording."""
     if not images:
         return np.zeros((0, 1, 1, 3), np.uint8)
+    if any(i.frame is not None for i in images):  # frames of recordings: one pass per recording
+        try:
+            return np.stack(read_frames(images, channels=3))
+        except AppdgenError as exc:
+            raise TrainError(str(exc)) from None
     with ThreadPoolExecutor(threads or len(os.sched_getaffinity(0))) as pool:
         try:
             decoded = list(pool.map(lambda i: read_image(i.path), images))

@@ -46,29 +46,6 @@ def recording_options(command):
 VERIFY_LINES = 20  # problems printed; the rest are counted
 
 
-def choose_camera(calib_path: str, camera: str | None, images) -> str:
-    """--camera, else the KITTI image_0X folder, else the only camera whose size matches the images."""
-    from appdgen.calib.formats import list_cameras
-    from appdgen.dataset.sources import image_size, kitti_camera
-
-    if camera is not None:
-        return camera
-    cameras = list_cameras(Path(calib_path))
-    if len(cameras) == 1:
-        return cameras[0]
-    named = kitti_camera(images)
-    if named is not None and named in cameras:
-        return named
-    size = image_size(images[0].path)
-    fitting = [c for c in cameras if load_calibration(calib_path, c).size == size]
-    if len(fitting) == 1:
-        return fitting[0]
-    if not fitting:
-        raise AppdgenError(f"{calib_path}: no camera ({', '.join(cameras)}) is {size[0]}x{size[1]} like "
-                           f"{images[0].path}")
-    raise AppdgenError(f"{calib_path}: cameras {', '.join(fitting)} fit the images; choose one with --camera")
-
-
 @main.command()
 @calib_option
 @camera_option
@@ -109,10 +86,8 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     from appdgen.dataset.build import BuildConfig, build as run_build
     from appdgen.util.distribute import resolve_jobs
     from appdgen.sampling.options import SamplingOptions
-    from appdgen.calib.formats import calibration_topic
-    from appdgen.dataset.recordings import FrameChoice, list_recordings, raw_images, resolve_channels
-    from appdgen.dataset.recordings import choose_camera as choose_recording_camera
-    from appdgen.dataset.sources import all_grey, check_images, list_images
+    from appdgen.dataset.inputs import resolve_inputs
+    from appdgen.dataset.recordings import FrameChoice, resolve_channels
 
     if samples is not None and per_image is not None:
         raise AppdgenError("give --samples or --per-image, not both")
@@ -121,29 +96,15 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     if per_image is not None and per_image < 1:
         raise AppdgenError(f"--per-image {per_image}: must be at least 1")
     workers = resolve_jobs(jobs)
-    choice = FrameChoice(every, min_interval, start, end)
-    found = list_recordings(images_spec)
-    if found:
-        camera = choose_recording_camera(calib_path, camera, found[0], topic)
-        reference = load_calibration(calib_path, camera)
-        frames = raw_images(found, images_spec, split_by, topic, calibration_topic(calib_path, camera), choice,
-                            reference.size, skip_bad)
-        images, skipped, mono, recordings = frames.images, frames.skipped, frames.mono, frames.recordings
-    else:
-        if topic is not None or choice != FrameChoice():
-            raise AppdgenError(f"--images {images_spec}: --topic/--every/--min-interval/--start/--end choose frames "
-                               f"of recordings (bags, videos), not image files")
-        images = list_images(images_spec, split_by)
-        camera = choose_camera(calib_path, camera, images)
-        reference = load_calibration(calib_path, camera)
-        images, skipped = check_images(images, reference.size, skip_bad)
-        mono, recordings = channels_choice == "auto" and all_grey(images), ()
+    inputs = resolve_inputs(images_spec, calib_path, camera, split_by, topic,
+                            FrameChoice(every, min_interval, start, end), skip_bad, check_grey=channels_choice == "auto")
+    reference, images, skipped = inputs.reference, inputs.images, inputs.skipped
     total = samples if samples is not None else len(images) * (per_image if per_image is not None else 10)
     config = BuildConfig(
-        reference=reference, camera=camera, calib_path=calib_path, images=tuple(images), samples=total,
+        reference=reference, camera=inputs.camera, calib_path=calib_path, images=images, samples=total,
         size=parse_size(size) or reference.size, image_format=image_format, shard_size=shard_size, seed=seed,
         **SamplingOptions.parse(reference, ranges, appd_max, zero_fraction, max_fov, interp).build_fields(reference),
-        channels=resolve_channels(channels_choice, mono), recordings=recordings,
+        channels=resolve_channels(channels_choice, inputs.mono), recordings=inputs.recordings,
     )
     summary = run_build(config, Path(out_dir), workers, backend, scheduler, resume, overwrite,
                         progress=not quiet, command=["appdgen", *sys.argv[1:]], skipped=skipped)

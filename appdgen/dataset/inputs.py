@@ -1,0 +1,81 @@
+"""What an --images spec names, resolved once for `build` and `fit --online`: the camera of the calibration file
+that shot it, its reference calibration, and the raw images (files, or frames of recordings) with their splits."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from appdgen.calib.calibration import Calibration
+from appdgen.calib.formats import calibration_topic, list_cameras, load
+from appdgen.dataset import recordings
+from appdgen.dataset.recordings import FrameChoice
+from appdgen.dataset.sources import RawImage, all_grey, check_images, image_size, kitti_camera, list_images
+from appdgen.errors import AppdgenError
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """The resolved inputs: camera name, reference calibration, raw images in order, the images skipped
+    (--skip-bad), whether every source is grey, and the recordings' (source, sha256) (empty for image files)."""
+
+    camera: str
+    reference: Calibration
+    images: tuple[RawImage, ...]
+    skipped: list[dict] = field(default_factory=list)
+    mono: bool = False
+    recordings: tuple[tuple[str, str], ...] = ()
+
+
+def resolve_inputs(spec: str, calib_path: str, camera: str | None = None, split_by: str = "none",
+                   topic: str | None = None, choice: FrameChoice = FrameChoice(), skip_bad: bool = False,
+                   check_grey: bool = True) -> Inputs:
+    """The inputs an --images spec names (a folder, glob or list of images, or recordings) with the calibration
+    file's camera for them; every image checked against the camera's size (check_grey: also whether all are grey)."""
+    found = recordings.list_recordings(spec)
+    if found:
+        camera = recordings.choose_camera(calib_path, camera, found[0], topic)
+        reference = load(Path(calib_path), camera=camera)
+        frames = recordings.raw_images(found, spec, split_by, topic, calibration_topic(calib_path, camera), choice,
+                                       reference.size, skip_bad)
+        return Inputs(camera, reference, tuple(frames.images), frames.skipped, frames.mono, frames.recordings)
+    if topic is not None or choice != FrameChoice():
+        raise AppdgenError(f"--images {spec}: --topic/--every/--min-interval/--start/--end choose frames of "
+                           "recordings (bags, videos), not image files")
+    images = list_images(spec, split_by)
+    camera = choose_camera(calib_path, camera, images)
+    reference = load(Path(calib_path), camera=camera)
+    images, skipped = check_images(images, reference.size, skip_bad)
+    return Inputs(camera, reference, tuple(images), skipped, check_grey and all_grey(images))
+
+
+def choose_camera(calib_path: str, camera: str | None, images: list[RawImage]) -> str:
+    """--camera, else the KITTI image_0X folder, else the only camera whose size matches the images."""
+    if camera is not None:
+        return camera
+    cameras = list_cameras(Path(calib_path))
+    if len(cameras) == 1:
+        return cameras[0]
+    named = kitti_camera(images)
+    if named is not None and named in cameras:
+        return named
+    size = image_size(images[0].path)
+    fitting = [c for c in cameras if load(Path(calib_path), camera=c).size == size]
+    if len(fitting) == 1:
+        return fitting[0]
+    if not fitting:
+        raise AppdgenError(f"{calib_path}: no camera ({', '.join(cameras)}) is {size[0]}x{size[1]} like "
+                           f"{images[0].path}")
+    raise AppdgenError(f"{calib_path}: cameras {', '.join(fitting)} fit the images; choose one with --camera")
+
+
+def read_frames(images: list[RawImage], channels: int = 3) -> list:
+    """Every raw image decoded in order as 8-bit images of `channels` (1: grey H×W, 3: BGR H×W×3): files one by one,
+    frames of recordings in one pass per recording."""
+    from appdgen.dataset.images import as_channels, read_image
+
+    reader = recordings.FrameReader([i.frame for i in images if i.frame is not None])
+    try:
+        return [read_image(i.path, channels) if i.frame is None else as_channels(reader.read(i.frame), channels)
+                for i in images]
+    finally:
+        reader.close()

@@ -82,6 +82,7 @@ def test_export_takes_one_channel(mono_run: Path, tmp_path: Path, capsys) -> Non
 
 def test_fit_online_trains_on_a_bags_frames(mono_run: Path, kitti_quarter, tmp_path: Path, capsys) -> None:
     from appdgen.dataset.inputs import resolve_inputs
+    from appdgen.dataset.recordings import FrameChoice
     from train.online import decode_frames
 
     calib, bag = str(mono_run / "calib.txt"), str(mono_run / "mono.bag")
@@ -89,6 +90,9 @@ def test_fit_online_trains_on_a_bags_frames(mono_run: Path, kitti_quarter, tmp_p
     grey = [cv2.cvtColor(raw_image(kitti_quarter.size, i), cv2.COLOR_BGR2GRAY) for i in range(FRAMES)]
     held = decode_frames(list(inputs.images))  # the bag's frames, in order, grey ones as BGR (online is colour)
     assert np.array_equal(held, np.stack([cv2.cvtColor(g, cv2.COLOR_GRAY2BGR) for g in grey]))
-    main(["fit", "--online", "--calib", calib, "--camera", "02", "--images", bag, "--run", str(tmp_path / "run"),
-          "--steps", "1", "--batch", "2", "--workers", "0", "--val-split", "none", "--quiet"])
+    main(["fit", "--online", "--calib", calib, "--camera", "02", "--images", bag, "--every", "2", "--run",
+          str(tmp_path / "run"), "--steps", "1", "--batch", "2", "--workers", "0", "--val-split", "none", "--quiet"])
     assert json.loads(capsys.readouterr().out.splitlines()[-1])["step"] == 1
+    ckpt = torch.load(tmp_path / "run" / "last.pt", weights_only=True)
+    assert ckpt["config"]["fit"]["online"]["every"] == 2  # the frame choice is part of the run's data, kept on resume
+    assert len(resolve_inputs(bag, calib, "02", choice=FrameChoice(every=2)).images) == FRAMES // 2

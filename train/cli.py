@@ -34,6 +34,7 @@ def online_options(command):
         click.option("--render", default="auto", show_default=True, type=click.Choice(list(RENDERS)),
                      help="Where --online rectifies: cpu = loader workers with OpenCV, as build; device = the "
                           "training device (grid_sample; no lanczos4); auto = device on CUDA, else cpu."),
+        recording_options,
         click.option("--val-shards", default=None,
                      help="--online: validate on this offline build (its val split, else its only split) instead "
                           "of fixed-seed pairs of held-out frames."),

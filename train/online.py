@@ -27,6 +27,7 @@ from appdgen.calib.calibration import Calibration
 from appdgen.cli.base import parse_size
 from appdgen.dataset.images import read_image
 from appdgen.dataset.inputs import read_frames, resolve_inputs
+from appdgen.dataset.recordings import FrameChoice
 from appdgen.dataset.sources import RawImage
 from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
@@ -62,6 +63,11 @@ class OnlineOptions:
     interp: str = DEFAULT_INTERP
     render: str = "auto"
     val_shards: str | None = None  # validate on an offline build instead of fixed-seed online pairs
+    topic: str | None = None  # which frames of a recording, as build's --topic/--every/--min-interval/--start/--end
+    every: int = 1
+    min_interval: float = 0.0
+    start: float | None = None
+    end: float | None = None
 
     def sampling(self, reference: Calibration) -> SamplingOptions:
         """The SamplingOptions these stand for (errors name the option)."""
@@ -71,7 +77,7 @@ class OnlineOptions:
 
 #: OnlineOptions that change the data: a resume must keep them (the renderer may change).
 SAME_DATA = ("calib", "images", "camera", "split_by", "size", "ranges", "appd_max", "zero_fraction", "max_fov",
-             "interp", "val_shards")
+             "interp", "val_shards", "topic", "every", "min_interval", "start", "end")
 
 
 def pick_render(render: str, interp: str, device: torch.device) -> str:
@@ -113,7 +119,8 @@ class Scene:
 def open_scene(o: OnlineOptions) -> tuple[Scene, list[RawImage]]:
     """The calibration, size, sampling options (checked: reachable --appd-max) and the listed raw images."""
     try:
-        inputs = resolve_inputs(o.images, o.calib, o.camera, o.split_by, check_grey=False)
+        choice = FrameChoice(o.every, o.min_interval, o.start, o.end)
+        inputs = resolve_inputs(o.images, o.calib, o.camera, o.split_by, o.topic, choice, check_grey=False)
         reference, camera, images = inputs.reference, inputs.camera, list(inputs.images)
         from appdgen.geometry.crop import check_output_size, valid_region
 

@@ -33,7 +33,7 @@ def resolve_inputs(spec: str, calib_path: str, camera: str | None = None, split_
     file's camera for them; every image checked against the camera's size (check_grey: also whether all are grey)."""
     found = recordings.list_recordings(spec)
     if found:
-        camera = recordings.choose_camera(calib_path, camera, found[0], topic)
+        camera = choose_camera(calib_path, camera, recording=found[0], topic=topic)
         reference = load(Path(calib_path), camera=camera)
         frames = recordings.raw_images(found, spec, split_by, topic, calibration_topic(calib_path, camera), choice,
                                        reference.size, skip_bad)
@@ -48,13 +48,32 @@ def resolve_inputs(spec: str, calib_path: str, camera: str | None = None, split_
     return Inputs(camera, reference, tuple(images), skipped, check_grey and all_grey(images))
 
 
-def choose_camera(calib_path: str, camera: str | None, images: list[RawImage]) -> str:
-    """--camera, else the KITTI image_0X folder, else the only camera whose size matches the images."""
+def choose_camera(calib_path: str, camera: str | None, images: list[RawImage] = (), recording: Path | None = None,
+                  topic: str | None = None) -> str:
+    """--camera, else the file's only camera, else the one the inputs point at: for a recording the camera whose
+    rostopic is --topic or one of the recording's image topics; for image files the KITTI image_0X folder, else the
+    only camera of the images' size."""
     if camera is not None:
         return camera
     cameras = list_cameras(Path(calib_path))
     if len(cameras) == 1:
         return cameras[0]
+    if recording is not None:
+        return _camera_of_topic(calib_path, cameras, recording, topic)
+    return _camera_of_images(calib_path, cameras, images)
+
+
+def _camera_of_topic(calib_path: str, cameras: list[str], recording: Path, topic: str | None) -> str:
+    """The one camera whose rostopic is --topic, else one of the recording's image topics."""
+    wanted = {topic} if topic is not None else set(recordings.topics(recording))
+    fitting = [c for c in cameras if calibration_topic(calib_path, c) in wanted]
+    if len(fitting) == 1:
+        return fitting[0]
+    raise AppdgenError(f"{calib_path}: cameras {', '.join(fitting or cameras)}: choose one with --camera")
+
+
+def _camera_of_images(calib_path: str, cameras: list[str], images: list[RawImage]) -> str:
+    """The KITTI image_0X folder's camera, else the only camera whose size matches the first image."""
     named = kitti_camera(images)
     if named is not None and named in cameras:
         return named

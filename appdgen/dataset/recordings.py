@@ -277,22 +277,6 @@ class FrameReader:
             self._stream = None
 
 
-def choose_camera(calib_path: str, camera: str | None, recording: Path, topic: str | None) -> str:
-    """--camera, else the only camera, else the one whose rostopic is --topic or the recording's image topic."""
-    from appdgen.calib.formats import calibration_topic, list_cameras
-
-    if camera is not None:
-        return camera
-    cameras = list_cameras(Path(calib_path))
-    if len(cameras) == 1:
-        return cameras[0]
-    wanted = {topic} if topic is not None else set(topics(recording))
-    fitting = [c for c in cameras if calibration_topic(calib_path, c) in wanted]
-    if len(fitting) == 1:
-        return fitting[0]
-    raise AppdgenError(f"{calib_path}: cameras {', '.join(fitting or cameras)}: choose one with --camera")
-
-
 @dataclass(frozen=True)
 class Frames:
     """The raw images an --images spec of recordings gives: frames as RawImage, whether all are mono, the frames

@@ -1,18 +1,44 @@
 """Checkpoints: plain tensors, dicts, lists, str and numbers only, so weights_only=True loads them."""
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from appdgen.util.atomic import atomic_stream
 from train.errors import TrainError
-from train.model import AppdNet, ModelConfig
+from appdgen.dataset.layout import LABEL_COLUMN
+from train.model import NORMALIZE, AppdNet, ModelConfig
 
 FORMAT = "appdgen-train/1"
 
 
 PLAIN = (str, int, float, bool, type(None), torch.Tensor)
+
+
+def check_normalize(normalize: str) -> None:
+    """Refuse a --normalize that is not one of NORMALIZE."""
+    if normalize not in NORMALIZE:
+        raise TrainError(f"--normalize must be one of {', '.join(NORMALIZE)}, got {normalize!r}")
+
+
+def fresh(opts, size: tuple[int, int], stats: tuple[list[float], list[float], np.ndarray], channels: str,
+          config: dict) -> dict:
+    """A new run's checkpoint: untrained weights seeded by opts.seed, input normalisation from the run's own images
+    (per-channel mean and std in [0, 1], and the mean image C×H×W), and `config` (label mean, appd_max, crop rule,
+    data) completed with the model, the label column, fit's options and torch's version."""
+    mean, std, mean_image = stats
+    torch.manual_seed(opts.seed)
+    model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), channels=channels,
+                                normalize=opts.normalize))
+    if opts.normalize == "pixel":
+        with torch.no_grad():
+            model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])
+    config = {"model": model.cfg.to_dict(), "label": LABEL_COLUMN, **config,
+              "fit": asdict(opts), "versions": {"torch": str(torch.__version__)}}  # TorchVersion is not weights_only-safe
+    return {"step": 0, "model": model.state_dict(), "optimizer": None, "config": config, "best_val_mae": None}
 
 
 def check_plain(obj: object, where: str = "checkpoint") -> None:

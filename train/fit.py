@@ -9,7 +9,7 @@ import math
 import sys
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -24,7 +24,7 @@ from train.data import (
     make_loader, open_shards, read_labels, recording,
 )
 from train.errors import TrainError
-from train.model import NORMALIZE, AppdNet, ModelConfig, check_size
+from train.model import AppdNet, check_size
 
 if TYPE_CHECKING:
     from train.online import OnlineOptions
@@ -163,26 +163,16 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
     """A fresh checkpoint dict: normalisation from a spread subset, label mean, untrained weights."""
     size = image_size(ss, plan.train)
     check_size(*size)
-    if opts.normalize not in NORMALIZE:
-        raise TrainError(f"--normalize must be one of {', '.join(NORMALIZE)}, got {opts.normalize!r}")
+    checkpoint.check_normalize(opts.normalize)
     spec = StreamSpec(ss.for_split(plan.train.split), plan.train, size)
     mean, std, sub_labels, mean_image = channel_stats(spec, opts.stats_samples, plan.n_train)
     label_mean = _train_label_mean(labels, plan.train) if labels else sum(sub_labels) / len(sub_labels)
-    torch.manual_seed(opts.seed)
     channels = "grey" if len(mean) == 1 else "bgr"  # the build's samples: 1 channel from a mono source
-    model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), channels=channels,
-                                normalize=opts.normalize))
-    if opts.normalize == "pixel":
-        with torch.no_grad():
-            model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])
-    config = {
-        "model": model.cfg.to_dict(), "label": LABEL_COLUMN, "label_mean": label_mean, "appd_max": ss.appd_max,
+    return checkpoint.fresh(opts, size, (mean, std, mean_image), channels, {
+        "label_mean": label_mean, "appd_max": ss.appd_max,
         "rectify": ss.rectify_rule(),  # predict --calib rectifies raw images by the same rule
         "data": {"shards": str(ss.root), "train": plan.train.describe(),
-                 "val": plan.val.describe() if plan.val else None, "n_train": plan.n_train, "n_val": plan.n_val},
-        "fit": asdict(opts), "versions": {"torch": str(torch.__version__)},  # TorchVersion is not weights_only-safe
-    }
-    return {"step": 0, "model": model.state_dict(), "optimizer": None, "config": config, "best_val_mae": None}
+                 "val": plan.val.describe() if plan.val else None, "n_train": plan.n_train, "n_val": plan.n_val}})
 
 
 def _train_label_mean(labels: dict, sel: Selection) -> float:

@@ -16,7 +16,7 @@ import sys
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +37,7 @@ from appdgen.sampling.sampler import DEFAULT_APPD_MAX
 from train import checkpoint
 from train.data import Selection, StreamSpec, make_loader, open_shards
 from train.errors import TrainError
-from train.model import NORMALIZE, AppdNet, ModelConfig, check_size
+from train.model import check_size
 
 #: --render choices: auto = device on CUDA (when its interpolation exists there), else cpu.
 RENDERS = ("auto", "cpu", "device")
@@ -404,29 +404,17 @@ class OnlineData:
     def new_state(self) -> dict:
         """A fresh checkpoint: normalisation and label mean from the run's first images, untrained weights."""
         opts = self.opts
-        if opts.normalize not in NORMALIZE:
-            raise TrainError(f"--normalize must be one of {', '.join(NORMALIZE)}, got {opts.normalize!r}")
+        checkpoint.check_normalize(opts.normalize)
         # The first stats_samples images of the run itself (seed and indices fixed): what the training sees.
         first = rendered(self.spec(opts.seed, count=opts.stats_samples), opts.workers, self.device_frames)
-        mean, std, mean_image = image_stats(first)
         label_mean = float(torch.cat([b["label"] for b in first]).double().mean())
-        torch.manual_seed(opts.seed)
-        w, h = self.scene.size
-        model = AppdNet(ModelConfig(w, h, mean=tuple(mean), std=tuple(std), normalize=opts.normalize))
-        if opts.normalize == "pixel":
-            with torch.no_grad():
-                model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])
         o = opts.online
-        config = {
-            "model": model.cfg.to_dict(), "label": "appd_pct", "label_mean": label_mean, "appd_max": o.appd_max,
-            "rectify": self.rule(),
+        return checkpoint.fresh(opts, self.scene.size, image_stats(first), "bgr", {
+            "label_mean": label_mean, "appd_max": o.appd_max, "rectify": self.rule(),
             "data": {"online": True, "calib": o.calib, "camera": self.scene.camera,
                      "sampling": self.scene.sampling.describe(self.scene.reference),
                      "train": self.plan.train, "val": self.plan.val, "n_train": self.plan.n_train,
-                     "n_val": self.plan.n_val},
-            "fit": asdict(opts), "versions": {"torch": str(torch.__version__)},
-        }
-        return {"step": 0, "model": model.state_dict(), "optimizer": None, "config": config, "best_val_mae": None}
+                     "n_val": self.plan.n_val}})
 
     def check_resume(self, state: dict, last: Path) -> None:
         """Refuse a checkpoint whose data differs (another size, field of view, sampling or frames)."""

@@ -353,20 +353,37 @@ def channel_stats(spec: StreamSpec, n: int, n_total: int | None
     stride = max(1, (n_total or n) // n)
     # A 'world' of `stride` ranks in sample mode picks every stride-th sample: spread, not the first n.
     sub = StreamSpec(spec.shards, spec.selection, spec.size, world=stride, force_sample_mode=True, limit=n)
-    image_sum: np.ndarray | None = None
-    total_sq: np.ndarray | float = 0.0
-    count = 0
+    stats = PixelStats()
     labels: list[float] = []
     for sample in ShardStream(sub):
-        img = sample["image"].numpy().astype(np.float64) / 255.0
-        image_sum = img if image_sum is None else image_sum + img
-        total_sq = total_sq + (img**2).reshape(img.shape[0], -1).sum(1)
-        count += 1
+        stats.add(sample["image"].numpy()[None])
         labels.append(float(sample["label"]))
-    if image_sum is None:
+    if not stats.count:
         raise TrainError(f"no samples for {spec.selection.describe()} in {len(spec.shards)} shard(s)")
-    mean_image = image_sum / count
-    pixels = count * mean_image[0].size
-    mean = mean_image.reshape(mean_image.shape[0], -1).mean(1)
-    std = np.sqrt(np.maximum(total_sq / pixels - mean**2, 1e-12))
-    return mean.tolist(), np.maximum(std, 1e-3).tolist(), labels, mean_image.astype(np.float32)
+    mean, std, mean_image = stats.result()
+    return mean, std, labels, mean_image
+
+
+class PixelStats:
+    """Running per-channel mean and std of 8-bit images (N×C×H×W) as pixels in [0, 1], and their mean image."""
+
+    def __init__(self) -> None:
+        self.image_sum: np.ndarray | None = None
+        self.square_sum: np.ndarray | float = 0.0
+        self.count = 0
+
+    def add(self, images: np.ndarray) -> None:
+        """Count a batch of images (N×C×H×W, 0…255)."""
+        img = images.astype(np.float64) / 255.0
+        total = img.sum(0)
+        self.image_sum = total if self.image_sum is None else self.image_sum + total
+        self.square_sum = self.square_sum + (img**2).reshape(*img.shape[:2], -1).sum((0, 2))
+        self.count += len(img)
+
+    def result(self) -> tuple[list[float], list[float], np.ndarray]:
+        """(mean per channel, std per channel ≥ 1e-3, the mean image C×H×W float32)."""
+        mean_image = self.image_sum / self.count
+        pixels = self.count * mean_image[0].size
+        mean = mean_image.reshape(mean_image.shape[0], -1).mean(1)
+        std = np.sqrt(np.maximum(self.square_sum / pixels - mean**2, 1e-12))
+        return mean.tolist(), np.maximum(std, 1e-3).tolist(), mean_image.astype(np.float32)

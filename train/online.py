@@ -35,7 +35,7 @@ from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
 from appdgen.sampling.options import DEFAULT_ZERO_FRACTION, SamplingOptions
 from appdgen.sampling.sampler import DEFAULT_APPD_MAX
 from train import checkpoint
-from train.data import Selection, StreamSpec, make_loader, open_shards
+from train.data import PixelStats, Selection, StreamSpec, make_loader, open_shards
 from train.errors import TrainError
 from train.model import check_size
 
@@ -327,11 +327,10 @@ def rendered(spec: PairSpec, workers: int, device_frames: DeviceFrames | None) -
 
 def image_stats(batches: list[dict]) -> tuple[list[float], list[float], np.ndarray]:
     """Per-channel mean and std of pixels in [0, 1] and the per-pixel mean image (C×H×W float32) of batches."""
-    images = torch.cat([b["image"].cpu() for b in batches]).double().div_(255.0)
-    mean_image = images.mean(0)
-    mean = mean_image.flatten(1).mean(1)
-    std = (images.pow(2).flatten(2).mean((0, 2)) - mean**2).clamp_min(1e-12).sqrt().clamp_min(1e-3)
-    return mean.tolist(), std.tolist(), mean_image.float().numpy()
+    stats = PixelStats()
+    for batch in batches:
+        stats.add(batch["image"].cpu().numpy())
+    return stats.result()
 
 
 @dataclass(frozen=True)

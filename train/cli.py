@@ -8,7 +8,7 @@ from dataclasses import asdict
 
 import click
 
-from appdgen.cli.dataset import recording_options
+from appdgen.cli.base import recording_options, stack_options
 from train.errors import TrainError
 
 DEVICE = click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
@@ -39,9 +39,7 @@ def online_options(command):
                      help="--online: validate on this offline build (its val split, else its only split) instead "
                           "of fixed-seed pairs of held-out frames."),
     ]
-    for option in reversed(options):
-        command = option(command)
-    return command
+    return stack_options(command, options)
 
 
 def online_from(kw: dict) -> None:

@@ -143,6 +143,13 @@ interp_option = click.option("--interp", default=DEFAULT_INTERP, type=click.Choi
                              show_default=True, help="Interpolation of the remap.")
 
 
+def stack_options(command: Callable, options: list[Callable]) -> Callable:
+    """Apply click option decorators to a command so that --help lists them in the given order."""
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
 def sampling_options(command: Callable) -> Callable:
     """--ranges, --appd-max, --zero-fraction, --max-fov and --interp (sampling.options.SamplingOptions): the same
     names, defaults and help for `appdgen build` and `python -m train fit --online`."""
@@ -163,9 +170,22 @@ def sampling_options(command: Callable) -> Callable:
         max_fov_option,
         interp_option,
     ]
-    for option in reversed(options):
-        command = option(command)
-    return command
+    return stack_options(command, options)
+
+
+def recording_options(command: Callable) -> Callable:
+    """--topic, --every, --min-interval, --start, --end: which frames of a recording (build, predict, fit --online)."""
+    return stack_options(command, [
+        click.option("--topic", default=None,
+                     help="Image topic of a bag [default: the calibration's rostopic, else the only image topic]."),
+        click.option("--every", default=1, show_default=True, help="Keep every Nth frame of a recording."),
+        click.option("--min-interval", default=0.0, show_default=True, metavar="SECONDS",
+                     help="Keep frames at least this far apart (after --every)."),
+        click.option("--start", default=None, type=float, metavar="SECONDS",
+                     help="Skip the frames before this time, from the recording's first frame."),
+        click.option("--end", default=None, type=float, metavar="SECONDS",
+                     help="Stop at this time, from the recording's first frame."),
+    ])
 
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")

@@ -8,6 +8,7 @@ import click
 
 from appdgen.cli.base import (
     fail_cleanly,
+    recording_options,
     sampling_options,
     split_by_option,
     IMAGES_HELP,
@@ -23,24 +24,6 @@ from appdgen.errors import AppdgenError
 from appdgen.dataset.layout import BUILD_JSON, FORMATS
 from appdgen.dataset.recordings import CHANNELS
 from appdgen.synth.recording import KINDS as RECORDING_KINDS
-
-
-def recording_options(command):
-    """--topic, --every, --min-interval, --start, --end: which frames of a recording (build and predict)."""
-    options = [
-        click.option("--topic", default=None,
-                     help="Image topic of a bag [default: the calibration's rostopic, else the only image topic]."),
-        click.option("--every", default=1, show_default=True, help="Keep every Nth frame of a recording."),
-        click.option("--min-interval", default=0.0, show_default=True, metavar="SECONDS",
-                     help="Keep frames at least this far apart (after --every)."),
-        click.option("--start", default=None, type=float, metavar="SECONDS",
-                     help="Skip the frames before this time, from the recording's first frame."),
-        click.option("--end", default=None, type=float, metavar="SECONDS",
-                     help="Stop at this time, from the recording's first frame."),
-    ]
-    for option in reversed(options):
-        command = option(command)
-    return command
 
 
 VERIFY_LINES = 20  # problems printed; the rest are counted

@@ -9,7 +9,6 @@ import time
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
@@ -18,7 +17,6 @@ from appdgen.geometry.appd import appd
 from appdgen.util.atomic import temporary_target
 from appdgen.calib.calibration import PARAMS, Calibration
 from appdgen.geometry.crop import valid_region
-from appdgen.util.distribute import run_unordered
 from appdgen.dataset.layout import STAGES, member_record
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler

@@ -11,7 +11,6 @@ import pytest
 from appdgen import lens
 from appdgen.geometry.appd import appd
 from appdgen.calib.calibration import Calibration
-from appdgen.geometry.crop import valid_region
 from appdgen.util.distribute import run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.geometry.crop import check_max_fov

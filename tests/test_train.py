@@ -5,7 +5,6 @@ import csv
 import json
 import shutil
 import sys
-import types
 from collections import Counter
 from pathlib import Path
 

@@ -1,6 +1,7 @@
 """Geometry and sampler cost as ratios to one LANCZOS4 remap of a raw-size 3-channel image, measured in one run.
 
 Targets (issues #3, #4): crop + maps + APPD ≤ 25 % of a remap; the sampler ≤ 10 % of a remap per accepted sample.
+Also kb4's numpy maps against cv2.fisheye.initUndistortRectifyMap, which gives the same maps (tests/test_lens.py).
 Run: make bench (single-threaded OpenCV).
 """
 from __future__ import annotations
@@ -10,6 +11,7 @@ import time
 import cv2
 import numpy as np
 
+from appdgen import lens
 from appdgen.geometry.appd import appd_px
 from appdgen.calib.calibration import Calibration
 from appdgen.geometry.maps import rectify
@@ -55,6 +57,16 @@ def geometry_ratio(calib: Calibration, max_fov: float | None) -> tuple[float, fl
     return remap, best_of(lambda: appd_px(ref, rectify(perturbed, max_fov=max_fov)))
 
 
+def kb4_maps(calib: Calibration, max_fov: float) -> tuple[float, float]:
+    """(appdgen's kb4 maps, cv2.fisheye's maps) of the reference crop at raw size, in seconds."""
+    ref = rectify(calib, max_fov=max_fov)
+    new_k, size = ref.new_camera_matrix, calib.size
+    ours = best_of(lambda: lens.get("kb4").maps(calib.K, calib.coeffs, new_k, size))
+    theirs = best_of(lambda: cv2.fisheye.initUndistortRectifyMap(calib.K, calib.D, np.eye(3), new_k, size,
+                                                                  cv2.CV_32FC1))
+    return ours, theirs
+
+
 def main() -> None:
     """Print per-operation times and their ratio to one remap, per lens model."""
     cv2.setNumThreads(1)
@@ -72,6 +84,9 @@ def main() -> None:
         fov = f", max_fov {max_fov:g}" if max_fov else ""
         print(f"  {name:9s} {camera.width}x{camera.height}{fov:16s} remap {remap * 1e3:7.2f} ms   "
               f"geometry {geometry * 1e3:6.2f} ms   ({geometry / remap:.3f})")
+    ours, theirs = kb4_maps(*MODEL_CAMERAS["kb4"])
+    print(f"kb4 maps at 512x512: numpy {ours * 1e3:.2f} ms, cv2.fisheye.initUndistortRectifyMap {theirs * 1e3:.2f} ms "
+          f"({theirs / ours:.1f}x the time)")
 
 
 if __name__ == "__main__":

@@ -121,7 +121,7 @@ def test_reach_finds_at_least_what_random_points_of_the_box_find(kitti02: Calibr
 
 def test_without_distortion_focal_and_centre_give_no_appd() -> None:
     # A 3384x2710 camera with D = 0, as ApolloScape's: the crop is the whole frame whatever fx, fy, cx, cy are,
-    # so the maps are the identity and APPD is exactly 0 (the README quotes these numbers).
+    # so the maps are the identity and APPD is exactly 0 (docs/lens-models.md quotes these numbers).
     camera = Calibration(3384, 2710, 2304.5, 2305.9, 1686.2, 1354.98)
     for change in ({"fx": 0.05}, {"fy": -0.05}, {"cx": 0.05}, {"cy": -0.05}):
         assert appd(camera, camera.perturb(**change), (423, 339))[0] == pytest.approx(0.0, abs=1e-9)

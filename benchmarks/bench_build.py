@@ -30,7 +30,7 @@ from appdgen.dataset.images import encode_image
 from appdgen.dataset.layout import FORMATS
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
-from appdgen.dataset.sources import list_images
+from appdgen.sources.files import list_images
 
 KITTI_02 = Calibration(1392, 512, 959.791, 956.9251, 696.0217, 224.1806,
                        -0.3691481, 0.1968681, 0.001353473, 0.0005677587, -0.06770705)

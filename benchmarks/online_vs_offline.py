@@ -29,7 +29,7 @@ def prepare(args: argparse.Namespace, out: Path) -> Path:
     """Synthesize train and test frames, build the offline arm's pairs and the test set; returns the calibration."""
     from appdgen.calib.formats import load
     from appdgen.dataset.build import BuildConfig, build
-    from appdgen.dataset.sources import list_images
+    from appdgen.sources.files import list_images
     from train.experiment import ExperimentOptions, synthesize_frames
 
     raw = out / "raw"

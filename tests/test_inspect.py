@@ -23,7 +23,7 @@ from appdgen.dataset.inspect import histogram, sheet_layout, spread
 from appdgen.dataset.verify import verify
 from appdgen.calib.calibration import PARAMS
 from appdgen.dataset.layout import label_schema
-from appdgen.dataset.sources import RawImage
+from appdgen.sources.frames import RawImage
 from conftest import KITTI_2011_09_26
 
 SAMPLES, SHARD_SIZE, SIZE = 12, 4, (174, 64)  # 3 shards; 174x64 keeps KITTI's 1392:512 aspect

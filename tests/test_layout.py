@@ -11,7 +11,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "appdgen"
 #: The flow, ground first: a module may import its own stage and earlier ones only; synth and analysis sit side by
 #: side (neither imports the other); the package's own __init__/__main__ (the public names, python -m) are the top.
 STAGES: dict[str, int] = {"errors": 0, "version": 0, "util": 1, "lens": 2, "calib": 3, "geometry": 4, "sampling": 5,
-                          "dataset": 6, "synth": 7, "analysis": 7, "cli": 8, "__init__": 9, "__main__": 9}
+                          "sources": 6, "dataset": 7, "synth": 8, "analysis": 8, "cli": 9, "__init__": 10,
+                          "__main__": 10}
 #: What the ground may import of appdgen.
 GROUND: dict[str, set[str]] = {"errors": set(), "version": set(), "util": {"errors"}}
 LOOSE_ALLOWED = {"__init__", "__main__", "errors"}

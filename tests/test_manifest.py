@@ -12,8 +12,8 @@ from click.testing import CliRunner
 
 from appdgen.cli import main
 from appdgen.errors import AppdgenError
-from appdgen.dataset.manifest import kitti_manifests, list_line, read_split_file, split_of, write_list
-from appdgen.dataset.sources import list_images
+from appdgen.sources.manifest import kitti_manifests, list_line, read_split_file, split_of, write_list
+from appdgen.sources.files import list_images
 from conftest import ROOT
 
 SPLIT_FILE = ROOT / "manifests" / "kitti_raw_split.txt"

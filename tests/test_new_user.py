@@ -22,7 +22,8 @@ from appdgen.errors import AppdgenError
 from appdgen.dataset.layout import FORMATS, STAGES, ShardStats
 from appdgen.geometry.remap import INTERPOLATIONS
 from appdgen.sampling.reach import UnreachableError
-from appdgen.dataset.sources import SPLIT_BY, RawImage, list_images
+from appdgen.sources.files import SPLIT_BY, list_images
+from appdgen.sources.frames import RawImage
 from helpers import Setup, assert_one_line_error, assert_same_build, kitti_text, run_cli, run_with_full_disk
 
 ROOT = Path(__file__).resolve().parents[1]

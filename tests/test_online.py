@@ -22,7 +22,7 @@ from train.cli import main  # noqa: E402
 from train.online import (  # noqa: E402
     OnlineOptions, PairSpec, decode_frames, frame_sides, open_scene, pair_loader,
 )
-from appdgen.dataset.sources import RawImage  # noqa: E402
+from appdgen.sources.frames import RawImage  # noqa: E402
 
 NET = "348x128"  # the smallest KITTI-aspect size the paper's CNN takes (7 max-pools: 128 px)
 DRIVES = ("2011_09_26_drive_0001", "2011_09_26_drive_0002", "2011_09_26_drive_0005")

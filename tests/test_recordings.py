@@ -252,7 +252,7 @@ def test_synth_writes_its_frames_as_a_recording(kind: str, tmp_path: Path) -> No
 
     target = rec / RECORDING_NAMES[kind]
     assert sorted(p.name for p in rec.iterdir()) == sorted(["calibration.yaml", target.name])
-    from appdgen.dataset.recordings import FrameChoice, stream, topics
+    from appdgen.sources.recordings import FrameChoice, stream, topics
 
     got = [decode() for _, decode in stream(target, topics(target)[0], FrameChoice())]
     expected = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted(png.glob("*.png"))]
@@ -292,7 +292,7 @@ def _one_message(encoding: str, pixels: np.ndarray):
 
 
 def test_encodings_decode_to_grey_or_bgr() -> None:
-    from appdgen.dataset.bags import IMAGE, decode_message
+    from appdgen.sources.bags import IMAGE, decode_message
 
     bgr = raw_image((10, 6), 1)
     grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
@@ -373,7 +373,7 @@ def test_a_missing_extra_is_named(name: str, module: str, extra: str, inputs: Pa
 
 
 def test_the_calibrations_topic_finds_its_compressed_twin(small_camera, tmp_path: Path) -> None:
-    from appdgen.dataset.recordings import choose_topic
+    from appdgen.sources.recordings import choose_topic
 
     bag = tmp_path / "compressed.bag"
     write_bag(bag, [raw_image(small_camera.size, 0)], topic="/cam0/image_raw/compressed", compressed="jpeg")

@@ -20,7 +20,7 @@ from appdgen.dataset.layout import (BUILD_JSON, FORMATS, LABEL_COLUMN, RECORD_EX
                                     SHARD_GLOB, SOURCE_COLUMNS)
 from appdgen.dataset.reader import ShardEntry as Shard
 from appdgen.dataset.reader import index_columns, open_build
-from appdgen.dataset.sources import KITTI_DRIVE
+from appdgen.sources.files import KITTI_DRIVE
 from train.errors import TrainError
 
 #: Slots (rank × worker) may get whole shards only if their sample counts differ by at most this.

@@ -116,7 +116,7 @@ def build_samples(opts: ExperimentOptions, raw: Path, calib_path: Path, shards: 
     returns build.json."""
     from appdgen.dataset.build import BuildConfig, build
     from appdgen.calib.formats import load
-    from appdgen.dataset.sources import list_images
+    from appdgen.sources.files import list_images
 
     images = [i for i in list_images(str(raw), "parent") if not opts.online or i.split == "test"]
     total = per_frame(opts) * len(images)

@@ -25,10 +25,10 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from appdgen.calib.calibration import Calibration
 from appdgen.cli.base import parse_size
-from appdgen.dataset.images import read_image
-from appdgen.dataset.inputs import read_frames, resolve_inputs
-from appdgen.dataset.recordings import FrameChoice
-from appdgen.dataset.sources import RawImage
+from appdgen.sources.decode import read_image
+from appdgen.sources.inputs import read_frames, resolve_inputs
+from appdgen.sources.recordings import FrameChoice
+from appdgen.sources.frames import RawImage
 from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image

@@ -13,10 +13,10 @@ import cv2
 import numpy as np
 import torch
 
-from appdgen.dataset.images import as_channels
+from appdgen.sources.decode import as_channels
 from train import checkpoint, runtime
 from appdgen.dataset.layout import FORMATS
-from appdgen.dataset.sources import IMAGE_SUFFIXES
+from appdgen.sources.files import IMAGE_SUFFIXES
 from train.errors import TrainError
 from train.model import AppdNet
 
@@ -70,7 +70,7 @@ class Frames:
 def sequence(inputs: list[str], frames: Frames, calib: str | None, camera: str | None) -> Iterator[Item]:
     """The images in order: a recording's chosen frames, streamed (the topic as build chooses it), else the
     files and folders' images."""
-    from appdgen.dataset.recordings import is_recording
+    from appdgen.sources.recordings import is_recording
 
     if not any(is_recording(Path(i)) for i in inputs):
         for path in list_images(inputs):
@@ -84,7 +84,7 @@ def sequence(inputs: list[str], frames: Frames, calib: str | None, camera: str |
 def recording_items(path: Path, frames: Frames, calib: str | None, camera: str | None) -> Iterator[Item]:
     """The chosen frames of a bag or video as items, in one pass (memory flat over hour-long recordings)."""
     from appdgen.calib.formats import calibration_topic
-    from appdgen.dataset.recordings import FrameChoice, choose_topic, stream
+    from appdgen.sources.recordings import FrameChoice, choose_topic, stream
     from appdgen.errors import AppdgenError
 
     if not path.exists():

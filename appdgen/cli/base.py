@@ -106,7 +106,7 @@ IMAGES_HELP = ("Raw images: a folder (recursive), a glob pattern, or a list file
 
 def split_by_option(command: Callable) -> Callable:
     """--split-by: the split column from each raw image's path (build's, and fit --online's holdout)."""
-    from appdgen.dataset.sources import SPLIT_BY
+    from appdgen.sources.files import SPLIT_BY
 
     return click.option("--split-by", default="none", type=click.Choice(list(SPLIT_BY)), show_default=True,
                         help="Split column from the path: first folder, KITTI day, KITTI drive, or recording (each "

@@ -22,7 +22,7 @@ from appdgen.cli.base import (
 from appdgen.util.distribute import BACKENDS
 from appdgen.errors import AppdgenError
 from appdgen.dataset.layout import BUILD_JSON, FORMATS
-from appdgen.dataset.recordings import CHANNELS
+from appdgen.sources.recordings import CHANNELS
 from appdgen.synth.recording import KINDS as RECORDING_KINDS
 
 
@@ -69,8 +69,8 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     from appdgen.dataset.build import BuildConfig, build as run_build
     from appdgen.util.distribute import resolve_jobs
     from appdgen.sampling.options import SamplingOptions
-    from appdgen.dataset.inputs import resolve_inputs
-    from appdgen.dataset.recordings import FrameChoice, resolve_channels
+    from appdgen.sources.inputs import resolve_inputs
+    from appdgen.sources.recordings import FrameChoice, resolve_channels
 
     if samples is not None and per_image is not None:
         raise AppdgenError("give --samples or --per-image, not both")
@@ -201,7 +201,7 @@ def verify_command(out_dir):
 @fail_cleanly
 def manifest(kitti_root, camera, split_file, nuscenes_root, channel, output):
     """Write image lists ('PATH SPLIT' lines) for build --images from a local KITTI raw or nuScenes tree."""
-    from appdgen.dataset.manifest import kitti_manifests, nuscenes_manifest
+    from appdgen.sources.manifest import kitti_manifests, nuscenes_manifest
 
     if (kitti_root is None) == (nuscenes_root is None):
         raise AppdgenError("give a KITTI_ROOT or --nuscenes ROOT (one of them)")

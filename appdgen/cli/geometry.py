@@ -90,7 +90,8 @@ def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size,
 @fail_cleanly
 def rectify(calib_path, camera, sets, perturbs, size, max_fov, interp, image, output):
     """Rectify, crop and rescale one raw image with a (perturbed) calibration."""
-    from appdgen.dataset.images import read_image, write_image
+    from appdgen.sources.decode import read_image
+    from appdgen.dataset.images import write_image
     from appdgen.geometry.maps import rectify as rectify_calibration
     from appdgen.geometry.remap import remap_image
 

@@ -30,9 +30,10 @@ from appdgen.calib.calibration import Calibration
 from appdgen.geometry.crop import check_max_fov, check_output_size, valid_region
 from appdgen.util.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
-from appdgen.dataset.images import as_channels, encode_image, read_image
+from appdgen.sources.decode import as_channels, read_image
+from appdgen.dataset.images import encode_image
 from appdgen.dataset.layout import (FORMATS, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES, ShardStats,
-                                    crop_columns, sample_key, shard_name)
+                                    crop_columns, sample_key, shard_name, source_columns)
 from appdgen.geometry.maps import Rectification
 from appdgen.util.progress import Progress
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
@@ -41,7 +42,8 @@ from appdgen.sampling.reach import UnreachableError
 from appdgen.sampling.options import DEFAULT_ZERO_FRACTION, SamplingOptions
 from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Sampler
 from appdgen.dataset.shards import BuildWriter
-from appdgen.dataset.sources import RawImage, check_complete
+from appdgen.sources.frames import Frame, RawImage
+from appdgen.sources.headers import check_complete
 
 MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
 MIN_SHARD_SIZE = 8  # … and about the least of small ones
@@ -262,7 +264,7 @@ def _frame_reader(config: BuildConfig, shard: int):
     """A recordings.FrameReader over the frames of a shard, or None for a build from image files."""
     if not config.from_recordings:
         return None
-    from appdgen.dataset.recordings import FrameReader
+    from appdgen.sources.recordings import FrameReader
 
     return FrameReader([config.image_for(i).frame for i in config.shard_samples(shard)])
 
@@ -319,8 +321,13 @@ def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_
         "width": config.size[0], "height": config.size[1],
         "appd_px": distance_px, "appd_pct": px_to_pct(distance_px, config.reference),
         **crop_columns(rect.crop.x0, rect.crop.y0, rect.crop.x1, rect.crop.y1),
-        **(image.frame.columns() if image.frame is not None else {}),
+        **(_frame_columns(image.frame) if image.frame is not None else {}),
     }
+
+
+def _frame_columns(frame: Frame) -> dict:
+    """A recording's frame as its labels.parquet source columns."""
+    return source_columns(frame.source, frame.topic, frame.timestamp_ns, frame.number)
 
 
 def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -> BuildConfig:

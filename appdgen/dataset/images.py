@@ -1,4 +1,5 @@
-"""Reading and writing image files with errors that name the file."""
+"""The build's image codec: samples encoded to (encode_image) and decoded from (decode_image) the stored
+.png/.jpg/.npy bytes, and image files written atomically; errors name the file."""
 from __future__ import annotations
 
 import io
@@ -10,27 +11,6 @@ import numpy as np
 from appdgen.dataset.layout import FORMATS
 from appdgen.util.atomic import write_file
 from appdgen.errors import AppdgenError
-
-
-def read_image(path: Path, channels: int = 3) -> np.ndarray:
-    """An 8-bit BGR image (H×W×3), or grey (H×W) for channels 1, from a file; AppdgenError naming the file when
-    unreadable."""
-    if not path.is_file():
-        raise AppdgenError(f"{path}: no such image file")
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE if channels == 1 else cv2.IMREAD_COLOR)
-    if image is None:
-        raise AppdgenError(f"{path}: not a readable image")
-    return image
-
-
-def as_channels(image: np.ndarray, channels: int) -> np.ndarray:
-    """An 8-bit image with `channels` (1: grey H×W, 3: BGR H×W×3), converted when it has the other kind (a grey
-    H×W×1 counts as grey)."""
-    if image.ndim == 3 and image.shape[2] == 1:
-        image = image[:, :, 0]
-    if image.ndim == 2:
-        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if channels == 3 else image
-    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if channels == 1 else image
 
 
 def encode_image(image: np.ndarray, ext: str) -> bytes:

@@ -108,6 +108,12 @@ def crop_columns(x0: float, y0: float, x1: float, y1: float) -> dict[str, float]
     return dict(zip(CROP_COLUMNS, (float(x0), float(y0), float(x1), float(y1))))
 
 
+def source_columns(source: str, topic: str, timestamp_ns: int, frame: int) -> dict:
+    """A recording's frame (the recording as given, topic, timestamp ns, number from 0) as its SOURCE_COLUMNS values."""
+    values = (source, topic, timestamp_ns, frame)
+    return {name: value for (name, _), value in zip(SOURCE_COLUMNS, values, strict=True)}
+
+
 def member_record(row: dict) -> dict:
     """A sample's `<key>.json` content: its label row minus the INDEX_ONLY columns."""
     return {k: v for k, v in row.items() if k not in INDEX_ONLY}

@@ -7,8 +7,8 @@ from contextlib import contextmanager
 from fractions import Fraction
 from pathlib import Path
 
-from appdgen.dataset.recordings import Frame, Index
-from appdgen.dataset.sources import ImageHeader, _header_problem
+from appdgen.sources.frames import Frame, Index
+from appdgen.sources.headers import ImageHeader, header_problem
 from appdgen.errors import AppdgenError
 
 
@@ -53,7 +53,7 @@ def index(path: Path, source: str, topic: str, size: tuple[int, int] | None, ski
     with open_video(path) as (container, stream):
         header = ImageHeader(stream.codec_context.width, stream.codec_context.height,
                              1 if (stream.codec_context.pix_fmt or "").startswith("gray") else 3)
-        problem = _header_problem(header, size) if size is not None else None
+        problem = header_problem(header, size) if size is not None else None
         if problem:
             raise AppdgenError(f"{path}: {problem}")
         pts = sorted(p.pts for p in container.demux(stream) if p.pts is not None and p.size)

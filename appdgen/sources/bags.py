@@ -11,8 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from appdgen.dataset.recordings import Frame, Index, to_8bit
-from appdgen.dataset.sources import _header_problem, stream_header, truncation
+from appdgen.sources.frames import Frame, Index
+from appdgen.sources.decode import to_8bit
+from appdgen.sources.headers import ImageHeader, header_problem, stream_header, truncation
 from appdgen.errors import AppdgenError
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -84,7 +85,7 @@ def index(path: Path, source: str, topic: str, size: tuple[int, int] | None, ski
             message = reader.deserialize(raw, connection.msgtype)
             header, problem = _message_header(message, connection.msgtype)
             if problem is None and size is not None:
-                problem = _header_problem(header, size)
+                problem = header_problem(header, size)
             if problem is None and skip_bad and connection.msgtype == COMPRESSED:  # worth a decode only when asked
                 problem = _undecodable(message, frame.where())
             if problem is None:
@@ -102,8 +103,6 @@ def index(path: Path, source: str, topic: str, size: tuple[int, int] | None, ski
 
 def _message_header(message, msgtype: str):
     """(ImageHeader of the decoded image: channels 1 grey or 3 colour, problem or None) of an image message."""
-    from appdgen.dataset.sources import ImageHeader
-
     if msgtype == IMAGE:
         if message.encoding not in ENCODINGS:
             return None, f"unknown encoding {message.encoding!r} (appdgen reads {', '.join(ENCODINGS)})"

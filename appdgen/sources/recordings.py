@@ -14,7 +14,8 @@ from typing import TypeVar
 import numpy as np
 
 from appdgen.errors import AppdgenError
-from appdgen.dataset.layout import SOURCE_COLUMNS
+from appdgen.sources.files import IMAGE_SUFFIXES, split_of
+from appdgen.sources.frames import Frame, Index, RawImage
 
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 VIDEO_SUFFIXES = (".mp4", ".mkv", ".avi", ".mov", ".webm", ".m4v", ".mpg", ".mpeg", ".ts", ".mts")
@@ -23,39 +24,6 @@ ROS2_METADATA = "metadata.yaml"  # a ROS 2 bag folder holds it beside its .db3/.
 CHANNELS = ("auto", "1", "3")
 _HASH_BLOCK = 1 << 22
 T = TypeVar("T")  # bytes hashed at a time (a recording may be larger than memory)
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One frame of a recording: where it lies (topic; timestamp ns; its number in the topic or video, from 0)
-    and how a reader finds it again (repeat: earlier frames of the same timestamp; pts: a video's own clock)."""
-
-    recording: Path
-    source: str  # the recording as given (labels.parquet's `source`)
-    topic: str  # "" for a video
-    timestamp_ns: int
-    number: int
-    repeat: int = 0
-    pts: int | None = None
-
-    @property
-    def name(self) -> str:
-        """The frame's raw_path: SOURCE/TOPIC/TIMESTAMP_NS for a bag, SOURCE/NUMBER for a video (whose dirname is
-        the recording, the unit a trainer's holdout keeps whole)."""
-        if self.pts is None:
-            return f"{self.source}/{self.topic.strip('/')}/{self.timestamp_ns}"
-        return f"{self.source}/{self.number:06d}"
-
-    def where(self) -> str:
-        """The frame in an error message: file, topic and timestamp (or frame number)."""
-        if self.pts is None:
-            return f"{self.recording}: topic {self.topic} at {self.timestamp_ns} ns"
-        return f"{self.recording}: frame {self.number} ({self.timestamp_ns} ns)"
-
-    def columns(self) -> dict:
-        """Its labels.parquet columns (layout.SOURCE_COLUMNS)."""
-        values = (self.source, self.topic, self.timestamp_ns, self.number)
-        return {name: value for (name, _), value in zip(SOURCE_COLUMNS, values, strict=True)}
 
 
 @dataclass(frozen=True)
@@ -99,16 +67,6 @@ class FrameChoice:
             yield item
 
 
-def to_8bit(image: np.ndarray) -> np.ndarray:
-    """An 8-bit image as it is; a 16-bit one (mono16, 16-bit PNG) by its high byte, value // 256: the dtype's full
-    range maps to 0..255 whatever bit depth the sensor used, so every frame of a recording gets the same rule."""
-    if image.dtype == np.uint8:
-        return image
-    if image.dtype == np.uint16:
-        return (image >> 8).astype(np.uint8)
-    raise AppdgenError(f"{image.dtype} pixels: appdgen reads 8- or 16-bit images")
-
-
 def resolve_channels(choice: str, mono: bool) -> int:
     """The samples' channels for a --channels choice and whether every source image is grey."""
     return (1 if mono else 3) if choice == "auto" else int(choice)
@@ -129,8 +87,6 @@ def is_video(path: Path) -> bool:
 def list_recordings(spec: str) -> list[Path] | None:
     """The recordings an --images spec names (one recording, or a folder of recordings and no image files, sorted
     by name), or None when it names image files instead (a folder of images keeps a stray video out, as before)."""
-    from appdgen.dataset.sources import IMAGE_SUFFIXES
-
     path = Path(spec)
     if is_recording(path):
         if not path.exists():
@@ -159,21 +115,12 @@ def recording_hash(path: Path) -> str:
     return digest.hexdigest()
 
 
-@dataclass(frozen=True)
-class Index:
-    """A recording's frames on one topic, and what they are: mono or colour, (width, height) in pixels."""
-
-    frames: list[Frame]
-    mono: bool
-    size: tuple[int, int]
-
-
 def _module(path: Path):
     """The reader module for a recording (bags or video), imported on first use (each needs its extra)."""
     if is_video(path):
-        from appdgen.dataset import video
+        from appdgen.sources import video
         return video
-    from appdgen.dataset import bags
+    from appdgen.sources import bags
     return bags
 
 
@@ -292,8 +239,6 @@ def raw_images(recordings: list[Path], spec: str, split_by: str, topic: str | No
                choice: FrameChoice, size: tuple[int, int], skip_bad: bool) -> Frames:
     """The chosen frames of every recording, in order, each a RawImage (split: the recording's name for
     --split-by recording; calibrated: the calibration's rostopic)."""
-    from appdgen.dataset.sources import RawImage, _split_of
-
     images, mono, skipped, hashes = [], True, [], []
     folder = None if is_recording(Path(spec)) else Path(spec)  # a folder of recordings: sources relative to it
     for path in recordings:
@@ -304,7 +249,7 @@ def raw_images(recordings: list[Path], spec: str, split_by: str, topic: str | No
         if not kept:
             where = f" topic {chosen}" if chosen else ""
             raise AppdgenError(f"{path}{where}: no frames left after --start/--end/--every/--min-interval")
-        split = path.name if split_by == "recording" else _split_of(Path(source), split_by)
+        split = path.name if split_by == "recording" else split_of(Path(source), split_by)
         images += [RawImage(path, frame.name, split, frame) for frame in kept]
         skipped += dropped
         mono = mono and found.mono

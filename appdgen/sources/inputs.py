@@ -7,9 +7,11 @@ from pathlib import Path
 
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.formats import calibration_topic, list_cameras, load
-from appdgen.dataset import recordings
-from appdgen.dataset.recordings import FrameChoice
-from appdgen.dataset.sources import RawImage, all_grey, check_images, image_size, kitti_camera, list_images
+from appdgen.sources import recordings
+from appdgen.sources.recordings import FrameChoice
+from appdgen.sources.frames import RawImage
+from appdgen.sources.files import all_grey, check_images, kitti_camera, list_images
+from appdgen.sources.headers import image_size
 from appdgen.errors import AppdgenError
 
 
@@ -90,7 +92,7 @@ def _camera_of_images(calib_path: str, cameras: list[str], images: list[RawImage
 def read_frames(images: list[RawImage], channels: int = 3) -> list:
     """Every raw image decoded in order as 8-bit images of `channels` (1: grey H×W, 3: BGR H×W×3): files one by one,
     frames of recordings in one pass per recording."""
-    from appdgen.dataset.images import as_channels, read_image
+    from appdgen.sources.decode import as_channels, read_image
 
     reader = recordings.FrameReader([i.frame for i in images if i.frame is not None])
     try:

@@ -14,7 +14,8 @@ from pathlib import Path
 from appdgen.util.atomic import write_file
 from appdgen.errors import AppdgenError
 from appdgen.calib.formats import load
-from appdgen.dataset.sources import KITTI_DAY, KITTI_DRIVE, image_size
+from appdgen.sources.files import KITTI_DAY, KITTI_DRIVE
+from appdgen.sources.headers import image_size
 
 CALIBRATION = "calib_cam_to_cam.txt"
 _FOLDER = re.compile(f"({KITTI_DRIVE})_(extract|sync)")  # a drive's unrectified (_extract) or rectified folder

@@ -21,7 +21,7 @@ from appdgen.calib.defaults import default_calibration
 from appdgen.geometry.crop import valid_region
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
-from train.fit import train_step
+from train.loop import train_step
 from train.model import AppdNet, ModelConfig
 from train.warp import maps_batch, rectify_batch, remap_batch
 

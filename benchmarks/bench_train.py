@@ -16,7 +16,7 @@ import torch
 
 from train import runtime
 from train.data import Selection, StreamSpec, make_loader, open_shards
-from train.fit import train_step
+from train.loop import train_step
 from train.model import AppdNet, ModelConfig
 from train.synthetic import write_shards
 

@@ -19,7 +19,7 @@ from torch import nn
 import train.model as model
 from train import runtime
 from train.data import Selection, ShardStream, StreamSpec, open_shards
-from train.fit import to_input, train_step
+from train.loop import to_input, train_step
 from train.model import AppdNet, ModelConfig
 
 #: The smaller network of the paper's released code (4 blocks of 8 filters, dense 256 → 64): ~14× fewer FLOPs.

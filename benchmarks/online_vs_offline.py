@@ -52,7 +52,7 @@ def arm(args: argparse.Namespace, out: Path, name: str) -> None:
     os.sched_setaffinity(0, {args.core})  # one core: runtime.setup_threads then gives torch one thread
     from train.evaluate import evaluate
     from train.fit import FitOptions, fit
-    from train.online import OnlineOptions
+    from train.online.options import OnlineOptions
 
     run = out / f"run-{name}"
     common = dict(run=str(run), steps=10**9, batch=args.batch, lr=args.lr, workers=0, ckpt_every=10**9,

@@ -1,5 +1,11 @@
-"""The package's layout (issue 19, docs/architecture.md): folders by pipeline stage, no import running back up the
-flow, few loose modules, no class over 200 lines outside synth/."""
+"""The package's layout (issues 19 and 24, docs/architecture.md): folders by pipeline stage, no import running back up
+the flow (the trainer, train/, included), no import circle even inside a folder, few loose modules, no class over 200
+lines outside synth/.
+
+Imports are read from the source (ast), lazy ones inside functions and TYPE_CHECKING blocks included: a lazy import
+that closes a circle couples the two modules as much as a top-level one (lazy imports stay for what is costly or
+optional to load, which never needs a circle). A parent package's __init__, which Python runs first, is not counted
+as imported unless it is named."""
 from __future__ import annotations
 
 import ast
@@ -7,45 +13,102 @@ from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "appdgen"
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "appdgen"
+TRAINER = ROOT / "train"
+PACKAGES = ("appdgen", "train")
 #: The flow, ground first: a module may import its own stage and earlier ones only; synth and analysis sit side by
 #: side (neither imports the other); the package's own __init__/__main__ (the public names, python -m) are the top.
+#: sources (what turns --images into frames) sits below dataset: the build imports the frames, sources import
+#: nothing of the build folder. The trainer (train/) sits over the library and below appdgen's CLI, which it may
+#: not import; its own CLI (train.cli, train.__main__) sits over appdgen.cli, whose shared click options it reuses.
+#: appdgen imports nothing of train.
 STAGES: dict[str, int] = {"errors": 0, "version": 0, "util": 1, "lens": 2, "calib": 3, "geometry": 4, "sampling": 5,
-                          "sources": 6, "dataset": 7, "synth": 8, "analysis": 8, "cli": 9, "__init__": 10,
-                          "__main__": 10}
+                          "sources": 6, "dataset": 7, "synth": 8, "analysis": 8, "train": 9, "cli": 10,
+                          "train.cli": 11, "__init__": 12, "__main__": 12}
 #: What the ground may import of appdgen.
 GROUND: dict[str, set[str]] = {"errors": set(), "version": set(), "util": {"errors"}}
 LOOSE_ALLOWED = {"__init__", "__main__", "errors"}
 
 
 def stage(module: str) -> str:
-    """The stage of a dotted module under appdgen ('appdgen.calib.formats' → 'calib'; 'appdgen' → '__init__')."""
+    """The stage of a dotted module ('appdgen.calib.formats' → 'calib'; 'appdgen' → '__init__'; 'train.fit' →
+    'train'; 'train.cli', 'train.__main__' → 'train.cli')."""
     parts = module.split(".")
+    if parts[0] == "train":
+        return "train.cli" if parts[1:2] in (["cli"], ["__main__"]) else "train"
     return parts[1] if len(parts) > 1 else "__init__"
 
 
-def modules() -> dict[str, Path]:
-    """Every module of the package by dotted name."""
+def modules(roots: tuple[Path, ...] = (PACKAGE,)) -> dict[str, Path]:
+    """Every module of the packages by dotted name (appdgen's alone by default)."""
     found = {}
-    for path in sorted(PACKAGE.rglob("*.py")):
-        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
-        found[".".join(parts[:-1] if parts[-1] == "__init__" and len(parts) > 1 else parts)] = path
+    for root in roots:
+        for path in sorted(root.rglob("*.py")):
+            parts = path.relative_to(root.parent).with_suffix("").parts
+            found[".".join(parts[:-1] if parts[-1] == "__init__" and len(parts) > 1 else parts)] = path
     return found
 
 
 def imported(path: Path) -> set[str]:
-    """The appdgen modules a file imports anywhere in it (lazy imports inside functions included); `from appdgen
-    import x` counts as appdgen.x when x is a subpackage or module, else as the package's own __init__."""
+    """The appdgen and train modules a file imports anywhere in it (lazy imports inside functions included);
+    `from appdgen import x` counts as appdgen.x when x is a subpackage or module, else as the package's own
+    __init__ (and so for train)."""
     names: set[str] = set()
-    known = modules()
+    known = modules((PACKAGE, TRAINER))
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
-            names |= {a.name for a in node.names if a.name.split(".")[0] == "appdgen"}
-        elif isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "appdgen":
-            assert node.level == 0, f"{path}: relative import"
+            names |= {a.name for a in node.names if a.name.split(".")[0] in PACKAGES}
+        elif isinstance(node, ast.ImportFrom) and node.level:
+            raise AssertionError(f"{path}: relative import")
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] in PACKAGES:
             for alias in node.names:
                 names.add(f"{node.module}.{alias.name}" if f"{node.module}.{alias.name}" in known else node.module)
     return names
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module → the modules it imports, over appdgen and train."""
+    return {name: imported(path) for name, path in modules((PACKAGE, TRAINER)).items()}
+
+
+def circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import circles of a graph: its strongly connected components of more than one module, or of one
+    module importing itself (Tarjan's algorithm, iterative), each sorted."""
+    order: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found = []
+    for start in sorted(graph):
+        if start in order:
+            continue
+        work = [(start, iter(sorted(graph.get(start, ()))))]
+        order[start] = low[start] = len(order)
+        stack.append(start)
+        while work:
+            node, targets = work[-1]
+            for target in targets:
+                if target not in order:
+                    order[target] = low[target] = len(order)
+                    stack.append(target)
+                    work.append((target, iter(sorted(graph.get(target, ())))))
+                    break
+                if target in stack:
+                    low[node] = min(low[node], order[target])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == order[node]:
+                    component = []
+                    while True:
+                        member = stack.pop()
+                        component.append(member)
+                        if member == node:
+                            break
+                    if len(component) > 1 or node in graph.get(node, ()):
+                        found.append(sorted(component))
+    return found
 
 
 def test_the_stage_table_names_every_folder_and_loose_module() -> None:
@@ -56,7 +119,7 @@ def test_the_stage_table_names_every_folder_and_loose_module() -> None:
 
 def test_no_module_imports_from_a_later_stage() -> None:
     upward = []
-    for name, path in modules().items():
+    for name, path in modules((PACKAGE, TRAINER)).items():
         mine = stage(name)
         for target in imported(path):
             theirs = stage(target)
@@ -97,3 +160,22 @@ def test_a_module_importing_upwards_is_caught(tmp_path: Path) -> None:
     probe.write_text("def f():\n    from appdgen.sampling.sampler import Sampler\n\nfrom appdgen import lens\n")
     assert imported(probe) == {"appdgen.sampling.sampler", "appdgen.lens"}
     assert STAGES[stage("appdgen.sampling.sampler")] > STAGES["calib"]
+
+
+def test_the_trainer_is_under_the_stage_order() -> None:
+    # train/ is read by the test above: no train module but its CLI imports appdgen.cli, appdgen imports no train.
+    graph = import_graph()
+    assert any(stage(name) == "train" for name in graph)
+    assert not [(n, t) for n, ts in graph.items() for t in ts if stage(n) == "train" and stage(t) == "cli"]
+    assert not [(n, t) for n, ts in graph.items() for t in ts if n.startswith("appdgen") and t.startswith("train")]
+
+
+def test_no_import_circle_not_even_inside_a_folder() -> None:
+    assert not circles(import_graph())
+
+
+def test_a_circle_is_caught() -> None:
+    # The circle check must be able to fail: a two-module circle inside one folder, a self-import, a long loop.
+    graph = {"a.x": {"a.y"}, "a.y": {"a.x", "b"}, "b": set(), "c": {"c"}, "d": {"e"}, "e": {"f"}, "f": {"d"}}
+    assert sorted(circles(graph)) == [["a.x", "a.y"], ["c"], ["d", "e", "f"]]
+    assert circles({"a": {"b"}, "b": set()}) == []

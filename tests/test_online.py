@@ -19,9 +19,10 @@ from appdgen.geometry.maps import rectify  # noqa: E402
 from helpers import Setup, kitti_text, raw_image, write_png  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train.cli import main  # noqa: E402
-from train.online import (  # noqa: E402
-    OnlineOptions, PairSpec, decode_frames, frame_sides, open_scene, pair_loader,
-)
+from train.holdout import frame_sides  # noqa: E402
+from train.online.options import OnlineOptions  # noqa: E402
+from train.online.pairs import PairSpec, pair_loader  # noqa: E402
+from train.online.recipe import decode_frames, open_recipe  # noqa: E402
 from appdgen.sources.frames import RawImage  # noqa: E402
 
 NET = "348x128"  # the smallest KITTI-aspect size the paper's CNN takes (7 max-pools: 128 px)
@@ -99,14 +100,14 @@ def test_device_renderer_runs_on_cpu_torch(frames, tmp_path, capsys):
 
 
 def test_batches_do_not_depend_on_workers_and_device_images_match_cpu(frames):
-    scene, images = open_scene(OnlineOptions(str(frames[0]), str(frames[1]), size=NET, interp="cubic"))
+    scene, images = open_recipe(OnlineOptions(str(frames[0]), str(frames[1]), size=NET, interp="cubic"))
     raw = decode_frames(images)
     cpu = PairSpec(scene, raw, seed=3, batch=2, render="cpu", count=6)
     alone = list(pair_loader(cpu, 0))
     two = list(pair_loader(cpu, 2))
     assert len(alone) == 3 and all(torch.equal(a["image"], b["image"]) and torch.equal(a["label"], b["label"])
                                    for a, b in zip(alone, two))
-    from train.online import DeviceFrames
+    from train.online.render import DeviceFrames
 
     device = list(pair_loader(PairSpec(scene, raw, 3, 2, "device", count=6), 0))
     rendered = DeviceFrames(raw, scene, torch.device("cpu")).render(device[0])
@@ -118,7 +119,7 @@ def test_batches_do_not_depend_on_workers_and_device_images_match_cpu(frames):
 def test_a_cpu_sample_is_the_builds_sample_byte_for_byte(reference_build: Path, setup: Setup):
     build = json.loads((reference_build / "build.json").read_text())
     opts = OnlineOptions(str(setup.calib), str(setup.images), size=setup.size, interp=build["interp"])
-    scene, images = open_scene(opts)
+    scene, images = open_recipe(opts)
     raw = decode_frames(images)
     rows = pq.read_table(reference_build / "labels.parquet").to_pylist()
     sampler = scene.sampler()

@@ -185,9 +185,9 @@ def test_split_by_recording_and_the_trainers_holdout(inputs: Path, tmp_path: Pat
     assert sorted(set(table["split"])) == ["a.bag", "b.bag", "c.mp4"]
     assert sorted(set(table["source"])) == ["a.bag", "b.bag", "c.mp4"]
     pytest.importorskip("torch")  # the trainer's holdout keeps each recording whole
-    from train.data import recording
+    from train.holdout import holdout_group
 
-    assert {recording(r, s) for r, s in zip(table["raw_path"], table["source"])} == {"a.bag", "b.bag", "c.mp4"}
+    assert {holdout_group(r, s) for r, s in zip(table["raw_path"], table["source"])} == {"a.bag", "b.bag", "c.mp4"}
 
 
 def _kalibr(path: Path, small_camera, topics: dict[str, str]) -> Path:

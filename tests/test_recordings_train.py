@@ -83,7 +83,7 @@ def test_export_takes_one_channel(mono_run: Path, tmp_path: Path, capsys) -> Non
 def test_fit_online_trains_on_a_bags_frames(mono_run: Path, kitti_quarter, tmp_path: Path, capsys) -> None:
     from appdgen.sources.inputs import resolve_inputs
     from appdgen.sources.recordings import FrameChoice
-    from train.online import decode_frames
+    from train.online.recipe import decode_frames
 
     calib, bag = str(mono_run / "calib.txt"), str(mono_run / "mono.bag")
     inputs = resolve_inputs(bag, calib, "02")

@@ -18,10 +18,9 @@ import cv2  # noqa: E402
 from train.checkpoint import check_plain  # noqa: E402
 from train.cli import main  # noqa: E402
 from train.data import (  # noqa: E402
-    Selection, ShardStream, StreamSpec, count_selected, held_out, make_loader, open_shards, read_labels,
-    recording, shard_mode_ok,
+    Selection, ShardStream, StreamSpec, count_selected, make_loader, open_shards, read_labels, shard_mode_ok,
 )
-from train.fit import FitOptions, holdout_unit  # noqa: E402
+from train.holdout import held_out, holdout_group, holdout_unit  # noqa: E402
 from train.errors import TrainError  # noqa: E402
 from train.model import AppdNet, ModelConfig, check_size  # noqa: E402
 from train.predict import running_verdicts  # noqa: E402
@@ -176,7 +175,7 @@ def test_looping_stream_yields_each_sample_once_per_pass(shards):
 def test_holdout_keeps_raw_images_or_recordings_whole(shards, by):
     labels = read_labels(shards)
     raw = dict(zip(labels["key"], labels["raw_path"]))
-    held = held_out({recording(r) for r in raw.values()}, 0.3) if by == "recording" else None
+    held = held_out({holdout_group(r) for r in raw.values()}, 0.3) if by == "recording" else None
     tr, va = (Selection("train", 0.3, side, raw, by, held) for side in ("train", "val"))
     side = {k: (tr.accepts({"key": k, "split": s}), va.accepts({"key": k, "split": s}))
             for k, s in zip(labels["key"], labels["split"]) if s == "train"}
@@ -190,19 +189,19 @@ def test_holdout_keeps_raw_images_or_recordings_whole(shards, by):
     assert count_selected(labels, va) > 0 and count_selected(labels, tr) > 0
 
 
-def test_recording_is_the_kitti_drive_else_the_folder():
-    assert recording("2011_09_26/2011_09_26_drive_0001_sync/image_02/data/0000000000.png") == \
+def test_holdout_group_is_the_kitti_drive_else_the_folder():
+    assert holdout_group("2011_09_26/2011_09_26_drive_0001_sync/image_02/data/0000000000.png") == \
         "2011_09_26_drive_0001"
-    assert recording("/k/2011_09_26_drive_0005_sync/image_02/data/7.png") == "2011_09_26_drive_0005"
-    assert recording("synth/train/frame_000001.png") == "synth/train"
+    assert holdout_group("/k/2011_09_26_drive_0005_sync/image_02/data/7.png") == "2011_09_26_drive_0005"
+    assert holdout_group("synth/train/frame_000001.png") == "synth/train"
 
 
 def test_holdout_by_recording_falls_back_to_image_in_a_one_folder_split(capsys):
     labels = {"key": ["a", "b"], "split": ["train", "train"], "raw_path": ["raw/x/1.png", "raw/x/2.png"]}
-    assert holdout_unit(labels, FitOptions(shards="s", run="r")) == ("image", None)
+    assert holdout_unit(labels, "train", "recording", 0.1) == ("image", None)
     assert "one recording" in capsys.readouterr().err
     labels["raw_path"][1] = "raw/y/2.png"
-    by, held = holdout_unit(labels, FitOptions(shards="s", run="r", val_fraction=0.01))
+    by, held = holdout_unit(labels, "train", "recording", 0.01)
     assert by == "recording" and len(held) == 1  # at least one recording, never all
 
 

@@ -22,7 +22,7 @@ def cli() -> None:
 def online_options(command):
     """fit's --online options: raw frames and a calibration, drawn and rendered as `appdgen build` would."""
     from appdgen.cli.base import CALIB_HELP, IMAGES_HELP, camera_option, sampling_options, size_option, split_by_option
-    from train.online import RENDERS
+    from train.online.options import RENDERS
 
     options = [
         click.option("--online", is_flag=True,
@@ -44,7 +44,7 @@ def online_options(command):
 
 def online_from(kw: dict) -> None:
     """Move the --online options out of fit's keywords into kw['online'] (an OnlineOptions, or None)."""
-    from train.online import OnlineOptions
+    from train.online.options import OnlineOptions
 
     names = [f for f in OnlineOptions.__dataclass_fields__]
     values = {n: kw.pop(n) for n in names}

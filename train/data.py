@@ -1,11 +1,8 @@
 """Shard discovery, split selection, and a WebDataset stream split across ranks and loader workers."""
 from __future__ import annotations
 
-import hashlib
 import json
-import posixpath
 import random
-import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,8 +17,8 @@ from appdgen.dataset.layout import (BUILD_JSON, FORMATS, LABEL_COLUMN, RECORD_EX
                                     SHARD_GLOB, SOURCE_COLUMNS)
 from appdgen.dataset.reader import ShardEntry as Shard
 from appdgen.dataset.reader import index_columns, open_build
-from appdgen.sources.files import KITTI_DRIVE
 from train.errors import TrainError
+from train.holdout import is_held
 
 #: Slots (rank × worker) may get whole shards only if their sample counts differ by at most this.
 SHARD_BALANCE = 0.10
@@ -109,33 +106,6 @@ def read_labels(root: Path) -> dict[str, list] | None:
     return cols
 
 
-def in_holdout(ident: str, fraction: float) -> bool:
-    """Deterministic, platform-independent coin: is this raw image in the held-out fraction?"""
-    h = int.from_bytes(hashlib.sha1(ident.encode()).digest()[:8], "big")
-    return h / 2**64 < fraction
-
-
-_DRIVE = re.compile(KITTI_DRIVE)
-#: What a holdout keeps together: whole recordings (KITTI drive, else folder), or single raw images.
-HOLDOUT_UNITS = ("recording", "image")
-
-
-def recording(raw_path: str, source: str | None = None) -> str:
-    """The recording a raw image comes from: the bag or video it is a frame of (labels' `source`), else the KITTI
-    drive its path names, else its folder."""
-    if source:
-        return source
-    drive = _DRIVE.search(raw_path)
-    return drive.group(0) if drive else posixpath.dirname(raw_path.replace("\\", "/"))
-
-
-def held_out(recordings: set[str], fraction: float) -> frozenset[str]:
-    """The recordings a holdout keeps for validation: `fraction` of them (at least one, never all), chosen by
-    hash so that the choice does not depend on their order or count elsewhere."""
-    ranked = sorted(recordings, key=lambda r: hashlib.sha1(r.encode()).digest())
-    return frozenset(ranked[:min(len(ranked) - 1, max(1, round(fraction * len(ranked))))])
-
-
 @dataclass(frozen=True)
 class Selection:
     """Which samples a stream yields: one split, optionally one side of a holdout by recording or raw image."""
@@ -155,11 +125,7 @@ class Selection:
             return True
         key = str(meta.get("key", ""))
         ident = str(meta.get("raw_path") or (self.raw_paths or {}).get(key) or key)
-        if self.by == "recording":
-            ident = recording(ident, meta.get("source"))
-            if self.held is not None:
-                return (ident in self.held) == (self.side == "val")
-        return in_holdout(ident, self.holdout) == (self.side == "val")
+        return is_held(ident, meta.get("source"), self.by, self.held, self.holdout) == (self.side == "val")
 
     def describe(self) -> str:
         """Human-readable summary for logs and checkpoints."""

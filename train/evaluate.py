@@ -11,7 +11,7 @@ import torch
 from train import checkpoint, runtime
 from train.data import Selection, StreamSpec, make_loader, open_shards
 from train.errors import TrainError
-from train.fit import to_input
+from train.loop import to_input
 from train.model import AppdNet
 
 N_BINS = 10

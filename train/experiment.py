@@ -136,7 +136,7 @@ def run(opts: ExperimentOptions) -> dict:
     from train import runtime
     from train.evaluate import evaluate
     from train.fit import FitOptions, fit
-    from train.online import OnlineOptions
+    from train.online.options import OnlineOptions
 
     check(opts)
     out = Path(opts.out)

@@ -9,9 +9,9 @@ import click
 import numpy as np
 
 from appdgen.calib.calibration import Calibration
+from appdgen.util.sizes import parse_size
 from appdgen.cli.base import (
     fail_cleanly,
-    parse_size,
     load_calibration,
     calib_option,
     camera_option,

@@ -53,19 +53,6 @@ class AppdgenGroup(click.Group):
             raise OneLineUsageError(f"{exc.format_message()} (see '{where} --help')") from None
 
 
-def parse_size(text: str | None) -> tuple[int, int] | None:
-    """'WxH' → (W, H) in pixels; None passes through."""
-    if text is None:
-        return None
-    try:
-        w, h = (int(part) for part in text.lower().split("x"))
-    except ValueError:
-        raise AppdgenError(f"--size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 348x128") from None
-    if w <= 0 or h <= 0:
-        raise AppdgenError(f"--size {text!r}: width and height must be positive")
-    return w, h
-
-
 def parse_assignments(option: str, items: tuple[str, ...], calib: Calibration) -> dict[str, float]:
     """('fx=0.05', …) → {'fx': 0.05, …}, checking names against calib's parameters (its lens model's)."""
     values: dict[str, float] = {}

@@ -6,13 +6,13 @@ from pathlib import Path
 
 import click
 
+from appdgen.util.sizes import parse_size
 from appdgen.cli.base import (
     fail_cleanly,
     recording_options,
     sampling_options,
     split_by_option,
     IMAGES_HELP,
-    parse_size,
     load_calibration,
     calib_option,
     camera_option,

@@ -7,9 +7,9 @@ from pathlib import Path
 import click
 
 from appdgen.calib.calibration import Calibration
+from appdgen.util.sizes import parse_size
 from appdgen.cli.base import (
     fail_cleanly,
-    parse_size,
     load_calibration,
     modified,
     calib_option,

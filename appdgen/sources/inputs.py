@@ -89,7 +89,7 @@ def _camera_of_images(calib_path: str, cameras: list[str], images: list[RawImage
     raise AppdgenError(f"{calib_path}: cameras {', '.join(fitting)} fit the images; choose one with --camera")
 
 
-def read_frames(images: list[RawImage], channels: int = 3) -> list:
+def read_images(images: list[RawImage], channels: int = 3) -> list:
     """Every raw image decoded in order as 8-bit images of `channels` (1: grey H×W, 3: BGR H×W×3): files one by one,
     frames of recordings in one pass per recording."""
     from appdgen.sources.decode import as_channels, read_image

@@ -157,7 +157,7 @@ def main() -> None:
         # the build, over the build's wall time, in the same seconds whatever the machine's drift.
         split = {k: float(np.median([b[2][k] for _, b in rounds])) for k in rounds[0][1][2]}
         inside = (split["decode"] + split["remap"] + split["encode"]) / sum(split.values())
-        shards = BuildConfig(KITTI_02, "02", "kitti", tuple(list_images(str(raw))), args.samples, size).shards
+        shards = BuildConfig(KITTI_02, "02", "kitti", tuple(list_images(str(raw))), args.samples, size).shard_count
         print(f"output {size[0]}x{size[1]}, {args.samples} samples in {shards} shards (default size), "
               f"{os.cpu_count()} cores, median of {args.rounds} alternating rounds")
         print(f"floor (remap + PNG encode) {floor:7.1f} samples/s")

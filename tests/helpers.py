@@ -77,7 +77,7 @@ class Setup:
         return range(shard * self.shard_size, min((shard + 1) * self.shard_size, self.samples))
 
     @property
-    def shards(self) -> int:
+    def shard_count(self) -> int:
         """Number of shards."""
         return -(-self.samples // self.shard_size)
 

@@ -162,13 +162,13 @@ def test_shards_agree_with_labels_and_build_json(reference_build: Path, setup: S
     build = json.loads((reference_build / "build.json").read_text())
     assert set(build) == BUILD_JSON_KEYS
     assert (build["samples"], build["size"], build["seed"]) == (setup.samples, [87, 32], setup.seed)
-    assert [s["file"] for s in build["shards"]] == [f"shard-{k:06d}.tar" for k in range(setup.shards)]
+    assert [s["file"] for s in build["shards"]] == [f"shard-{k:06d}.tar" for k in range(setup.shard_count)]
     for entry in build["shards"]:
         mine = [r for r in rows if r["shard"] == entry["file"]]
         assert_shard_complete(reference_build / entry["file"], setup, mine)
         assert entry["samples"] == len(mine) and entry["splits"] == dict(Counter(r["split"] for r in mine))
         assert entry["bytes"] == (reference_build / entry["file"]).stat().st_size
-    assert build["counts"]["samples"] == setup.samples and build["counts"]["shards"] == setup.shards
+    assert build["counts"]["samples"] == setup.samples and build["counts"]["shards"] == setup.shard_count
     stages, timings = build["timings"]["stage_seconds"], build["timings"]
     assert list(stages) == list(STAGES) and all(v > 0 for v in stages.values())
     assert sum(stages.values()) <= timings["wall_seconds"] * 2  # worker seconds: at most two workers' worth

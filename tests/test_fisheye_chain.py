@@ -105,13 +105,13 @@ def test_export_carries_the_rule(chain, tmp_path, capsys):
 
 
 def test_predict_rectifies_raw_fisheye_frames_as_the_build_did(chain, capsys):
-    from train.predict import crop_rule, rectifier
+    from train.predict import rectifier, rectify_rule
 
     ckpt_path = chain / "run" / "last.pt"
     ckpt = checkpoint.load(ckpt_path)
     frame, sample = reference_sample(chain)
     raw = cv2.imread(str(chain / "raw" / frame))
-    prep = rectifier(str(chain / "raw" / "calibration.yaml"), None, (128, 128), crop_rule(ckpt, str(ckpt_path), None))
+    prep = rectifier(str(chain / "raw" / "calibration.yaml"), None, (128, 128), rectify_rule(ckpt, str(ckpt_path), None))
     np.testing.assert_array_equal(prep(raw, frame), sample)  # the very pixels the detector was trained on
     out = train_cli(["predict", "--ckpt", ckpt_path, "--calib", chain / "raw" / "calibration.yaml",
                      chain / "raw" / frame, "--json"], capsys)

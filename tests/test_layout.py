@@ -179,3 +179,12 @@ def test_a_circle_is_caught() -> None:
     graph = {"a.x": {"a.y"}, "a.y": {"a.x", "b"}, "b": set(), "c": {"c"}, "d": {"e"}, "e": {"f"}, "f": {"d"}}
     assert sorted(circles(graph)) == [["a.x", "a.y"], ["c"], ["d", "e", "f"]]
     assert circles({"a": {"b"}, "b": set()}) == []
+
+
+def test_the_online_fit_takes_its_inputs_from_sources_not_the_build_folder() -> None:
+    # fit --online reads --images through appdgen.sources; appdgen.dataset is the build folder, which only the
+    # offline fit, evaluate and predict read (through dataset.reader / dataset.layout).
+    graph = import_graph()
+    online = {n: ts for n, ts in graph.items() if n.startswith("train.online") or n == "train.holdout"}
+    assert "train.online.recipe" in online and any(t.startswith("appdgen.sources") for t in online["train.online.recipe"])
+    assert not [(n, t) for n, ts in online.items() for t in ts if t.startswith("appdgen.dataset")]

@@ -25,7 +25,7 @@ def test_a_build_reads_back_as_its_summary_says(reference_build: Path, setup: Se
     assert build.size == (87, 32) and build.image_ext == ".png" and build.max_fov is None
     assert build.interp == info["interp"] == "lanczos4"
     assert build.count == setup.samples and build.splits == {"all": setup.samples}
-    assert build.shards == tuple(reference_build / f"shard-{k:06d}.tar" for k in range(setup.shards))
+    assert build.shards == tuple(reference_build / f"shard-{k:06d}.tar" for k in range(setup.shard_count))
     assert build.options["seed"] == setup.seed and build.options["shard_size"] == setup.shard_size
     assert build.labels().equals(pq.read_table(reference_build / "labels.parquet"))
     assert build.labels(columns=["key"]).column_names == ["key"]

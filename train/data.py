@@ -142,7 +142,7 @@ def count_selected(labels: Mapping[str, list] | None, sel: Selection) -> int | N
     return sum(sel.accepts({"key": k, "split": s, "raw_path": r, "source": o}) for k, s, r, o in rows)
 
 
-def decode_image(data: bytes, ext: str, where: str) -> np.ndarray:
+def decode_sample(data: bytes, ext: str, where: str) -> np.ndarray:
     """H×W×C uint8 image as stored (C 3: OpenCV BGR order, 1: grey) from a sample's encoded bytes."""
     arr = images.decode_image(data, f".{ext}", where)
     if arr.ndim == 2:  # a grey sample (a build with channels 1)
@@ -272,7 +272,7 @@ class ShardStream(IterableDataset):
     def _decode(self, meta: dict, ext: str, data: bytes, url: str) -> dict:
         """Decoded, size-checked sample."""
         where = f"{url}: sample {meta.get('key')}"
-        img = decode_image(data, ext, where)
+        img = decode_sample(data, ext, where)
         if self.spec.size is not None and (img.shape[1], img.shape[0]) != tuple(self.spec.size):
             w, h = self.spec.size
             raise TrainError(f"{where}: image is {img.shape[1]}x{img.shape[0]}, expected {w}x{h}")

@@ -106,7 +106,7 @@ def _known_count(ss: ShardSet, labels: dict | None, sel: Selection) -> int | Non
     return n
 
 
-def image_size(ss: ShardSet, sel: Selection) -> tuple[int, int]:
+def sample_size(ss: ShardSet, sel: Selection) -> tuple[int, int]:
     """Image size (w, h) from build.json, else from the first sample."""
     if ss.size is not None:
         return (int(ss.size[0]), int(ss.size[1]))
@@ -119,7 +119,7 @@ def image_size(ss: ShardSet, sel: Selection) -> tuple[int, int]:
 
 def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOptions) -> dict:
     """A fresh checkpoint dict: normalisation from a spread subset, label mean, untrained weights."""
-    size = image_size(ss, plan.train)
+    size = sample_size(ss, plan.train)
     check_size(*size)
     checkpoint.check_normalize(opts.normalize)
     spec = StreamSpec(ss.for_split(plan.train.split), plan.train, size)
@@ -154,7 +154,7 @@ def load_or_init(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOpt
         print(f"fit: resuming with another {', '.join('--' + k.replace('_', '-') for k in changed)} than the run "
               f"started with: the data continues from an approximate position", file=sys.stderr)
     cfg = checkpoint.model_config(state)
-    size = image_size(ss, plan.train)
+    size = sample_size(ss, plan.train)
     if (cfg.width, cfg.height) != size:
         raise TrainError(f"{last} was trained on {cfg.width}x{cfg.height} images, "
                          f"but the shards are {size[0]}x{size[1]}")

@@ -126,7 +126,7 @@ def size_check(size: tuple[int, int], resize: bool) -> Preprocess:
     return prep
 
 
-def crop_rule(ckpt: dict, ckpt_path: str, max_fov: float | None) -> dict:
+def rectify_rule(ckpt: dict, ckpt_path: str, max_fov: float | None) -> dict:
     """The rectification rule (max_fov degrees, interp) for raw images: the one the detector was trained with.
 
     --max-fov fills in a checkpoint that does not record its rule; one that contradicts the recorded rule is
@@ -228,7 +228,7 @@ def predict_stream(ckpt_path: str, inputs: list[str], calib: str | None = None, 
     ckpt = checkpoint.load(ckpt_path)
     if max_fov is not None and not calib:
         raise TrainError("--max-fov applies to rectifying raw images: it needs --calib")
-    rule = crop_rule(ckpt, ckpt_path, max_fov)
+    rule = rectify_rule(ckpt, ckpt_path, max_fov)
     model = checkpoint.build_model(ckpt).to(dev).to(memory_format=torch.channels_last)
     size = (model.cfg.width, model.cfg.height)
     prep = rectifier(calib, camera, size, rule) if calib else size_check(size, resize)

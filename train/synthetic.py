@@ -67,7 +67,7 @@ def write_shards(
                            splits=dict(sorted(Counter(r["split"] for r in rows).items())), references=0,
                            evaluations=0, stage_seconds=dict.fromkeys(STAGES, 0.0), seconds=0.0)
         made[shard] = writer.shard_done(stats, rows)
-    writer.finish(len(made), made, lambda shards: _summary(shards, reference, fmt, appd_max, per_shard, seed))
+    writer.finish(len(made), made, lambda stats: _summary(stats, reference, fmt, appd_max, per_shard, seed))
     return out
 
 
@@ -86,18 +86,18 @@ def _row(index: int, shard: int, split: str, raw: int, appd_pct: float, referenc
     }
 
 
-def _summary(shards: list[ShardStats], reference: Calibration, fmt: str, appd_max: float, per_shard: int,
+def _summary(shard_stats: list[ShardStats], reference: Calibration, fmt: str, appd_max: float, per_shard: int,
              seed: int) -> dict:
     """The summary a build writes, with what the trainer, `inspect` and `verify` read."""
     splits: Counter = Counter()
-    for stats in shards:
+    for stats in shard_stats:
         splits.update(stats.splits)
-    samples = sum(s.samples for s in shards)
+    samples = sum(s.samples for s in shard_stats)
     return {
         "appdgen_version": "synthetic", "calibration": {"camera": CAMERA, **reference.to_dict()}, "samples": samples,
         "size": [reference.width, reference.height], "format": fmt, "shard_size": per_shard, "seed": seed,
         "appd_max": appd_max,
-        "counts": {"samples": samples, "shards": len(shards), "splits": dict(sorted(splits.items())),
+        "counts": {"samples": samples, "shards": len(shard_stats), "splits": dict(sorted(splits.items())),
                    "references": 0},
-        "shards": [s.listing() for s in shards],
+        "shards": [s.listing() for s in shard_stats],
     }

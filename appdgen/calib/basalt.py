@@ -13,7 +13,7 @@ import numpy as np
 
 from appdgen import lens
 from appdgen.calib.calibration import DEFAULT_MODEL, INTRINSICS
-from appdgen.calib.fields import Found, Parts, allowed, as_mapping, image_size, k_matrix, need, number, short
+from appdgen.calib.fields import Found, Parts, allowed, as_mapping, read_size, k_matrix, need, number, short
 from appdgen.errors import AppdgenError
 
 #: Basalt ``camera_type`` → (appdgen model, how many of its coefficients ``intrinsics`` names; None: all).
@@ -50,5 +50,5 @@ def _camera(camera: Any, size: Any, index: int) -> Parts:
     names = INTRINSICS + lens.params(model)[:count]
     fx, fy, cx, cy, *coeffs = (number(f"{where}.intrinsics.{n}", need(values, n, f"{where}.intrinsics"))
                                for n in names)
-    in_file = None if size is None else image_size(f"value0.resolution[{index}]", size)
+    in_file = None if size is None else read_size(f"value0.resolution[{index}]", size)
     return in_file, k_matrix(fx, fy, cx, cy), model, np.array(coeffs)

@@ -86,7 +86,7 @@ def counted(what: str, values: np.ndarray, *counts: int) -> np.ndarray:
     return values
 
 
-def image_size(what: str, value: Any) -> Size:
+def read_size(what: str, value: Any) -> Size:
     """(width, height) in whole pixels from a 2-number list or string."""
     width, height = numbers(what, value, (2,))
     if not (width.is_integer() and height.is_integer()):
@@ -99,7 +99,7 @@ def optional_size(mapping: dict[str, Any], *keys: str) -> Size | None:
     if not any(k in mapping for k in keys):
         return None
     values = [need(mapping, k) for k in keys]
-    return image_size("/".join(keys), values[0] if len(keys) == 1 else values)
+    return read_size("/".join(keys), values[0] if len(keys) == 1 else values)
 
 
 def k_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:

@@ -32,7 +32,7 @@ import numpy as np
 
 from appdgen.calib import basalt, kalibr, kitti, native, nuscenes, opencv
 from appdgen.calib.calibration import Calibration
-from appdgen.calib.fields import Found, Size, image_size
+from appdgen.calib.fields import Found, Size, read_size
 from appdgen.calib.syntax import parse_json, parse_xml, parse_yaml
 from appdgen.errors import AppdgenError
 from appdgen.util.atomic import atomic_write
@@ -169,7 +169,7 @@ def _calibration(size: Size, K: np.ndarray, model: str, coeffs: np.ndarray) -> C
 def _chosen_size(in_file: Size | None, given: Any, default: Size | None) -> Size:
     """The file's image size (pixels), else `given`, else the format's default; a disagreement is an error."""
     if given is not None:
-        given = image_size("size", list(given) if isinstance(given, (tuple, np.ndarray)) else given)
+        given = read_size("size", list(given) if isinstance(given, (tuple, np.ndarray)) else given)
         if in_file is not None and given != in_file:
             raise AppdgenError(f"size {given[0]}x{given[1]} given, but the file says {in_file[0]}x{in_file[1]}")
     chosen = in_file or given or default

@@ -9,7 +9,7 @@ import re
 from functools import partial
 
 from appdgen.calib.calibration import DEFAULT_MODEL
-from appdgen.calib.fields import Found, Parts, image_size, need, numbers
+from appdgen.calib.fields import Found, Parts, read_size, need, numbers
 from appdgen.errors import AppdgenError
 
 _KITTI_KEY = re.compile(r"^[ \t]*[SKD]_([0-9]{2})[ \t]*:", re.MULTILINE)
@@ -35,4 +35,4 @@ def _camera(lines: dict[str, str], n: str) -> Parts:
     s = f"S_{n}"
     K = numbers(f"K_{n}", need(lines, f"K_{n}"), (9,)).reshape(3, 3)
     D = numbers(f"D_{n}", need(lines, f"D_{n}"), (4, 5))
-    return (image_size(s, lines[s]) if s in lines else None), K, DEFAULT_MODEL, D
+    return (read_size(s, lines[s]) if s in lines else None), K, DEFAULT_MODEL, D

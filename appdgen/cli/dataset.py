@@ -93,7 +93,7 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
                         progress=not quiet, command=["appdgen", *sys.argv[1:]], skipped=skipped)
     t = summary["timings"]
     skipped_note = f", {len(skipped)} images skipped (listed in {BUILD_JSON})" if skipped else ""
-    click.echo(f"built {total} samples in {config.shards} shards ({t['shards_built']} now, {t['shards_resumed']} "
+    click.echo(f"built {total} samples in {config.shard_count} shards ({t['shards_built']} now, {t['shards_resumed']} "
                f"resumed) in {t['wall_seconds']:.1f} s: {t['samples_per_second'] or 0:.1f} samples/s, "
                f"{t['mb_written']:.1f} MB written{skipped_note} -> {out_dir}")
 
@@ -175,7 +175,7 @@ def verify_command(out_dir):
     from appdgen.dataset.verify import verify
 
     report = verify(Path(out_dir))
-    checked = f"{report.samples} samples in {report.shards} shards"
+    checked = f"{report.samples} samples in {report.shard_count} shards"
     if report.ok:
         click.echo(f"verified {checked}: OK")
         return

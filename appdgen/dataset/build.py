@@ -16,7 +16,7 @@ import shutil
 import sys
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -91,6 +91,8 @@ class BuildConfig:
     max_fov: float | None = None  # degrees: bounds the horizontal field of view of every crop
     channels: int = 3  # of the samples: 1 grey, 3 BGR
     recordings: tuple[tuple[str, str], ...] = ()  # (source, sha256) of the recordings the frames come from
+    #: plan(), when already known: a config renamed after a plan.json has the same content, so the same plan.
+    known_plan: dict | None = field(default=None, compare=False, repr=False)
 
     @property
     def from_recordings(self) -> bool:
@@ -127,7 +129,7 @@ class BuildConfig:
             raise AppdgenError(f"{self.calib_path}: camera {self.camera}: {exc}") from None
 
     @property
-    def shards(self) -> int:
+    def shard_count(self) -> int:
         """Number of shards."""
         return -(-self.samples // self.shard_size)
 
@@ -161,7 +163,7 @@ class BuildConfig:
     def plan(self) -> dict:
         """A JSON-ready description of everything that shapes the output, by content: the calibration file's
         hash and the images' resolved paths (not the names they were given by), to check a resume against."""
-        return self._plan
+        return self.known_plan if self.known_plan is not None else self._plan
 
     @functools.cached_property
     def _plan(self) -> dict:
@@ -192,10 +194,8 @@ class BuildConfig:
                            i.frame, source=sources.get(i.frame.source, i.frame.source)))
                        for i, (name, split) in zip(self.images, record["images"]))
         recordings = tuple((sources.get(s, s), h) for s, h in self.recordings)
-        renamed = dataclasses.replace(self, calib_path=record["calibration"]["path"], images=images,
-                                      recordings=recordings)
-        renamed.__dict__["_plan"] = self._plan  # the same content, so the same plan (no second hashing)
-        return renamed
+        return dataclasses.replace(self, calib_path=record["calibration"]["path"], images=images,
+                                   recordings=recordings, known_plan=self.plan())
 
 
 def _image_line(image: RawImage) -> str:
@@ -404,7 +404,7 @@ def _remove_outputs(out: Path) -> None:
 def pending_shards(out: Path, config: BuildConfig) -> list[int]:
     """Shards whose fragment (written last) or tar is missing."""
     writer = config.writer(out)
-    return [k for k in range(config.shards) if not writer.is_done(k)]
+    return [k for k in range(config.shard_count) if not writer.is_done(k)]
 
 
 def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", scheduler: str | None = None,
@@ -428,8 +428,8 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
         for stats, rows in run_unordered(build_shard, [(config, str(out), k) for k in todo], jobs, backend, scheduler):
             made[stats.shard] = writer.shard_done(stats, rows)  # after the shard's tar: marks the shard done
             bar.advance(stats.samples, stats.file)
-        return writer.finish(config.shards, made, lambda shards: _summary(
-            config, shards, list(made), time.perf_counter() - start, command, skipped or []))
+        return writer.finish(config.shard_count, made, lambda stats: _summary(
+            config, stats, list(made), time.perf_counter() - start, command, skipped or []))
     except OSError as exc:
         raise AppdgenError(f"--out {out}: write failed ({exc.strerror or exc}); fix it and rerun with --resume") from None
     except UnreachableError as exc:
@@ -441,24 +441,24 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
         raise AppdgenError(f"{exc} (finished shards are kept: fix this and rerun with --resume)") from None
 
 
-def _summary(config: BuildConfig, shards: list[ShardStats], built: list[int], seconds: float,
+def _summary(config: BuildConfig, shard_stats: list[ShardStats], built: list[int], seconds: float,
              command: list[str] | None, skipped: list[dict]) -> dict:
     """build.json: what was asked, what was written, how fast, with which libraries."""
     splits: Counter = Counter()
-    for stats in shards:
+    for stats in shard_stats:
         splits.update(stats.splits)
-    made = [s for s in shards if s.shard in set(built)]
-    drawn = sum(s.samples - s.references for s in shards)
+    made = [s for s in shard_stats if s.shard in set(built)]
+    drawn = sum(s.samples - s.references for s in shard_stats)
     return {
         **config.record(),
         "command": command or sys.argv,
-        "counts": {"samples": config.samples, "shards": config.shards, "splits": dict(sorted(splits.items())),
-                   "references": sum(s.references for s in shards), "images": len(config.images),
+        "counts": {"samples": config.samples, "shards": config.shard_count, "splits": dict(sorted(splits.items())),
+                   "references": sum(s.references for s in shard_stats), "images": len(config.images),
                    "skipped_images": skipped},
-        "shards": [s.listing() for s in shards],
-        "sampler": {"evaluations_per_sample": sum(s.evaluations for s in shards) / max(drawn, 1),
-                    "seconds_per_sample": sum(s.stage_seconds["sample"] for s in shards) / max(drawn, 1)},
-        "timings": {"wall_seconds": seconds, "shards_built": len(made), "shards_resumed": config.shards - len(made),
+        "shards": [s.listing() for s in shard_stats],
+        "sampler": {"evaluations_per_sample": sum(s.evaluations for s in shard_stats) / max(drawn, 1),
+                    "seconds_per_sample": sum(s.stage_seconds["sample"] for s in shard_stats) / max(drawn, 1)},
+        "timings": {"wall_seconds": seconds, "shards_built": len(made), "shards_resumed": config.shard_count - len(made),
                     "samples_per_second": sum(s.samples for s in made) / seconds if seconds > 0 else None,
                     "mb_written": sum(s.bytes for s in made) / 1e6,
                     # Worker seconds per stage over this run's shards (all workers together).

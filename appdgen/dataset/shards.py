@@ -124,10 +124,10 @@ class BuildWriter:
         self.parts.mkdir(parents=True, exist_ok=True)
         return write_fragment(self.parts / fragment_name(stats.shard), rows, self.params, stats, self.sources)
 
-    def finish(self, shards: int, made: dict[int, pa.Table], summary: Callable[[list[ShardStats]], dict]) -> dict:
+    def finish(self, shard_count: int, made: dict[int, pa.Table], summary: Callable[[list[ShardStats]], dict]) -> dict:
         """Write labels.parquet from the fragments (this run's from memory, `made`) and build.json from
         summary(stats of every shard), then drop the parts; returns build.json's content."""
-        fragments = [made.get(k, self.parts / fragment_name(k)) for k in range(shards)]
+        fragments = [made.get(k, self.parts / fragment_name(k)) for k in range(shard_count)]
         write_index(self.out / INDEX, fragments, self.params, self.sources)
         content = summary([read_stats(f) for f in fragments])
         atomic_write(self.out / BUILD_JSON, json.dumps(content, indent=2).encode())

@@ -35,7 +35,7 @@ class Report:
     """What verify found: counts checked and problems as 'file: member: problem' lines."""
 
     samples: int = 0
-    shards: int = 0
+    shard_count: int = 0
     problems: list[str] = field(default_factory=list)
     total: int = 0  # problems found; only the first KEPT_PROBLEMS are kept as text
 
@@ -68,7 +68,7 @@ def verify(out: Path) -> Report:
         report.add(INDEX, "empty values in " + ", ".join(f"{name} ({n})" for name, n in empty.items()))
         return report
     shards = list(counts(table["shard"]))
-    report.shards = len(shards)
+    report.shard_count = len(shards)
     _verify_index(table, info, report)
     _verify_info(out, table, info, report)
     for name in shards:

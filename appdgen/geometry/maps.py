@@ -45,13 +45,6 @@ def rectify(calib: Calibration, size: tuple[int, int] | None = None, crop: Crop 
     return Rectification(calib, crop, new_k, map_x, map_y)
 
 
-def rectification_maps(calib: Calibration, size: tuple[int, int] | None = None,
-                       max_fov: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(map_x, map_y): float32 raw-pixel positions of M̂ at the output size (default: raw size)."""
-    rect = rectify(calib, size, max_fov=max_fov)
-    return rect.map_x, rect.map_y
-
-
 def raw_positions(calib: Calibration, new_k: np.ndarray, size: tuple[int, int], like: Any) -> tuple[Any, Any]:
     """(map_x, map_y): h×w raw-pixel positions of M̂ for output camera new_k at size (w, h), as arrays of `like`'s
     namespace, device and floating dtype (e.g. a torch tensor on the training device); see raw_positions_batch."""

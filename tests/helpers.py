@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import errno
 import hashlib
+import importlib.util
 import io
 import json
 import os
@@ -25,6 +26,14 @@ from appdgen.cli import main
 from appdgen.dataset.layout import member_record
 from appdgen.geometry.crop import valid_region
 from appdgen.sampling.sampler import Sampler
+
+
+def load_script(name: str):
+    """Import benchmarks/NAME.py as a module (benchmarks/ is not a package)."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def scaled(calib: Calibration, factor: int) -> Calibration:

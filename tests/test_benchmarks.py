@@ -1,24 +1,14 @@
 """The learnability diagnostics in benchmarks/: the affine/non-affine split obeys its laws."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 
 from appdgen.calib.defaults import default_calibration
 from appdgen.geometry.maps import rectify
 from appdgen.synth import scale_calibration
+from helpers import load_script
 
 KITTI_02_QUARTER = scale_calibration(default_calibration("02"), 0.25)  # the demo's camera, 348x128
-
-
-def load_script(name: str):
-    """Import benchmarks/NAME.py as a module (benchmarks/ is not a package)."""
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 visibility = load_script("visibility")

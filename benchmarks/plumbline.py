@@ -2,11 +2,11 @@
 fitted on, for appd_pct and bend_pct, at a raw size scaled by --scale (0.25 → 348×128).
 
 Each frame i is a new synthetic street (synth.render_frame, seed [seed, i]) seen through the reference camera and
-rectified with the build sampler's draw(seed, i) at the raw size: every test frame is an unseen scene under an
+rectified with the build sampler's draw(seed, i) at the raw size (or --size, as fit --online's --size): every test frame is an unseen scene under an
 unseen calibration. Prints, per target, the out-of-fold MAE / mean-predictor MAE (--folds interleaved folds, each
 frame predicted by a fit on the others, against their mean) and Spearman ρ, and the time of line_features per image.
 
-Run: python benchmarks/plumbline.py [--frames 160] [--scale 0.25] [--seed 0] [--folds 5]
+Run: python benchmarks/plumbline.py [--frames 160] [--scale 0.25] [--seed 0] [--folds 5] [--size WxH]
 """
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from appdgen.calib.defaults import default_calibration
+from appdgen.cli.base import parse_size
 from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.bend import split_warp
 from appdgen.geometry.remap import remap_image
@@ -25,11 +26,13 @@ from appdgen.synth import frame_rng, render_frame, scale_calibration
 from train.plumbline import PlumbLine, feature_matrix
 
 
-def pairs(scenes: int, scale: float, seed: int, draws: int = 1) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
-    """Rectified images of fresh pairs, `draws` calibrations per street (pair i = scene i // draws under the
-    sampler's draw(seed, i)), and their targets appd_pct, bend_pct (% of the raw diagonal)."""
+def pairs(scenes: int, scale: float, seed: int, draws: int = 1, size: tuple[int, int] | None = None
+          ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+    """Rectified images (at `size`, default the raw size) of fresh pairs, `draws` calibrations per street (pair i =
+    scene i // draws under the sampler's draw(seed, i)), and their targets appd_pct, bend_pct (% of the raw
+    diagonal)."""
     reference = scale_calibration(default_calibration(), scale)
-    sampler = Sampler(reference, appd_max=1.0, labels=True)
+    sampler = Sampler(reference, appd_max=1.0, labels=True, size=size)
     crop = sampler.reference_rect.crop
     images, appd, bend = [], [], []
     for scene in range(scenes):
@@ -47,12 +50,14 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.corrcoef(np.argsort(np.argsort(a)), np.argsort(np.argsort(b)))[0, 1])
 
 
-def score(x: np.ndarray, y: np.ndarray, alpha: float | None, folds: int) -> tuple[float, float, float]:
-    """(MAE / mean-predictor MAE, Spearman ρ, median alpha) of out-of-fold predictions: each frame predicted by a
-    fit on the other folds (frames i ≡ f mod folds), against that fit's training mean."""
+def score(x: np.ndarray, y: np.ndarray, alpha: float | None, folds: int, draws: int = 1
+          ) -> tuple[float, float, float]:
+    """(MAE / mean-predictor MAE, Spearman ρ, median alpha) of out-of-fold predictions: each pair predicted by a
+    fit on the other folds (streets s ≡ f mod folds, s = i // draws: no street on both sides), against that fit's
+    training mean."""
     predicted, baseline, alphas = np.empty_like(y), np.empty_like(y), []
     for fold in range(folds):
-        test = np.arange(len(y)) % folds == fold
+        test = np.arange(len(y)) // draws % folds == fold
         model = PlumbLine().fit_features(x[~test], y[~test], alpha)
         predicted[test], baseline[test] = model.predict_features(x[test]), y[~test].mean()
         alphas.append(model.alpha)
@@ -67,9 +72,10 @@ def main() -> None:
     parser.add_argument("--scale", type=float, default=0.25)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--folds", type=int, default=5)
+    parser.add_argument("--size", help="output WxH (default the raw size), e.g. 348x128 from --scale 1 frames")
     args = parser.parse_args()
     cv2.setNumThreads(1)
-    images, targets = pairs(args.frames, args.scale, args.seed)
+    images, targets = pairs(args.frames, args.scale, args.seed, size=parse_size(args.size))
     start = time.perf_counter()
     x = feature_matrix(images)
     per_image = (time.perf_counter() - start) / len(images)

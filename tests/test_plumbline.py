@@ -119,17 +119,16 @@ def test_straight_lines_through_the_kitti_lens_straighten_and_bend_more_with_k1(
 
 
 def test_a_ridge_fit_on_some_streets_ranks_the_bend_of_unseen_ones() -> None:
-    """20 streets × 3 fresh calibrations at 696×256: fitted on the first 10 streets, tested on the other 10
-    (measured: Spearman ρ 0.57, MAE 0.92 × the mean predictor's)."""
-    images, targets = floor_benchmark.pairs(20, 0.5, 0, draws=3)
-    bend = targets["bend_pct"]
+    """30 streets × 2 fresh calibrations at 696×256, each street's pairs predicted by a fit on the other streets
+    (5 folds). Measured: Spearman ρ 0.39, MAE 0.95 × the mean predictor's (seeds 1, 2: 0.54 / 0.74, 0.41 / 0.91;
+    with 20 streets it swung from 0.24 to 0.48 between seeds: the scenes, not the calibrations, set the noise)."""
+    images, targets = floor_benchmark.pairs(30, 0.5, 0, draws=2)
     x = feature_matrix(images)
-    train, test = slice(0, 30), slice(30, 60)
-    model = PlumbLine().fit_features(x[train], bend[train])
-    predicted = model.predict_features(x[test])
-    assert np.array_equal(predicted, model.predict(images[test]))
-    assert floor_benchmark.spearman(predicted, bend[test]) > 0.3
-    assert np.abs(predicted - bend[test]).mean() < np.abs(bend[train].mean() - bend[test]).mean()
+    ratio, rho, _ = floor_benchmark.score(x, targets["bend_pct"], 1.0, folds=5, draws=2)
+    assert rho > 0.25 and ratio < 1.0, (rho, ratio)
+    model = PlumbLine().fit(images[:30], targets["bend_pct"][:30])
+    assert np.array_equal(model.predict(images[30:]), model.predict_features(x[30:]))
+    assert np.array_equal(model.weights, PlumbLine().fit_features(x[:30], targets["bend_pct"][:30]).weights)
 
 
 def test_ridge_recovers_a_linear_law_and_round_trips_through_json(tmp_path) -> None:

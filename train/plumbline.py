@@ -41,7 +41,8 @@ END_MARGIN = 0.1  # of the length, and at least END_MARGIN_PX
 END_MARGIN_PX = 3.0
 REACH_PX = 3.0  # how far across a segment the edge is looked for (pixels of the image), both sides
 STEP_PX = 0.5
-PROFILE_INTERP = cv2.INTER_LINEAR  # how the gradient is read between pixels
+PROFILE_INTERP = cv2.INTER_CUBIC  # how the gradient is read between pixels (bilinear: ρ 0.40 vs 0.61 on bend at 1392×512)
+SOBEL_SIZE = 3
 MIN_VALID = 8  # samples with a clear edge a segment needs
 SMALLEST_SIDE = 16  # pixels: a smaller image has no measurable lines; its features are zeros
 CENTRE_SPREAD = 0.05  # diagonals: how far the principal point may sit from the image centre
@@ -120,8 +121,8 @@ def edge_offsets(grey: np.ndarray, lines: np.ndarray) -> _Offsets:
     points = a[:, None, :] + along[:, :, None] * (b - a)[:, None, :]
     across = np.arange(-REACH_PX, REACH_PX + STEP_PX / 2, STEP_PX)
     taps = points[:, :, None, :] + across[None, None, :, None] * normal[:, None, None, :]  # S×J×K×2
-    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
+    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=SOBEL_SIZE)
+    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=SOBEL_SIZE)
     shape = taps.shape[:3]
     map_x = taps[..., 0].reshape(-1, len(across)).astype(np.float32)
     map_y = taps[..., 1].reshape(-1, len(across)).astype(np.float32)

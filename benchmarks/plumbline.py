@@ -17,12 +17,12 @@ import cv2
 import numpy as np
 
 from appdgen.calib.defaults import default_calibration
-from appdgen.cli.base import parse_size
 from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.bend import split_warp
 from appdgen.geometry.remap import remap_image
 from appdgen.sampling.sampler import Sampler
 from appdgen.synth import frame_rng, render_frame, scale_calibration
+from appdgen.util.sizes import parse_size
 from train.plumbline import PlumbLine, feature_matrix
 
 

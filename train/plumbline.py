@@ -61,7 +61,6 @@ GRID = (48, 18)  # columns, rows of the grid the radial field's non-affine part 
 #: the same ridge fit on the same frames (issue 23's notes), and the linear floor must work from a few dozen images.
 FEATURE_NAMES: tuple[str, ...] = ("radial_bend", "radial_k1", "radial_support")
 FEATURES: int = len(FEATURE_NAMES)
-INDEX = {name: i for i, name in enumerate(FEATURE_NAMES)}
 FORMAT = "appdgen.plumbline/1"
 
 
@@ -76,7 +75,7 @@ def _grey(image: np.ndarray) -> np.ndarray:
         raise TrainError(f"plumb-line features need an H×W grey or H×W×3 BGR image, got shape {image.shape}")
     if image.dtype != np.uint8:
         raise TrainError(f"plumb-line features need a uint8 image, got {image.dtype}")
-    return image
+    return np.ascontiguousarray(image)
 
 
 def segments(grey: np.ndarray) -> np.ndarray:

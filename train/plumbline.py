@@ -48,7 +48,10 @@ PROFILE_INTERP = cv2.INTER_CUBIC
 SOBEL_SIZE = 3
 MIN_VALID = 8  # samples with a clear edge a segment needs
 SMALLEST_SIDE = 16  # pixels: a smaller image has no measurable lines; its features are zeros
-CENTRE_SPREAD = 0.05  # diagonals: how far the principal point may sit from the image centre
+#: Diagonals: how far the principal point may sit from the image centre. Using the reference crop's own principal
+#: point instead (0.022 diagonals above the centre for KITTI) ranked bend no better (out-of-fold ρ 0.64/0.52/0.25
+#: against 0.65/0.61/0.25 on three sets of pairs), so the image centre stays: it needs no calibration.
+CENTRE_SPREAD = 0.05
 CAUCHY = 2.0  # the reweighting's scale, in standard errors of a segment's own k
 ROUNDS = 3
 NOISE_FLOOR = 0.05  # pixels: no edge position is trusted closer than this (a clean synthetic edge fits to ~0)
@@ -108,10 +111,9 @@ class _Offsets:
     t: np.ndarray  # J, 0…1 over the sampled span (the segment less its ends)
 
 
-def edge_offsets(grey: np.ndarray, lines: np.ndarray) -> _Offsets:
-    """Sub-pixel edge positions across each segment: the peak of the derivative along its normal (pixels)."""
-    height, width = grey.shape
-    centre = np.array([(width - 1) / 2, (height - 1) / 2])
+def edge_offsets(grey: np.ndarray, lines: np.ndarray, centre: np.ndarray) -> _Offsets:
+    """Sub-pixel edge positions across each segment: the peak of the derivative along its normal (pixels), the
+    normal pointing away from `centre` (pixels)."""
     a, b = lines[:, :2], lines[:, 2:]
     direction = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
     normal = np.column_stack([-direction[:, 1], direction[:, 0]])
@@ -208,7 +210,7 @@ def line_features(image: np.ndarray) -> np.ndarray:
     lines = segments(grey)
     if len(lines) == 0:
         return features
-    offsets = edge_offsets(grey.astype(np.float32), lines)
+    offsets = edge_offsets(grey.astype(np.float32), lines, centre)
     bulge, rms, kept = _quadratic(offsets)
     stands = kept.any(axis=1)
     if not stands.any():

@@ -171,6 +171,11 @@ def test_misuse_is_a_clear_error(tmp_path) -> None:
         PlumbLine().fit_features(np.zeros((5, FEATURES + 1)), np.zeros(5))
     with pytest.raises(TrainError, match="not a plumb-line detector"):
         PlumbLine.from_dict({"format": "something else"})
+    saved = PlumbLine().fit_features(np.random.default_rng(2).normal(size=(10, FEATURES)), np.arange(10.0)).to_dict()
+    with pytest.raises(TrainError, match=f"{FEATURES} numbers each"):
+        PlumbLine.from_dict({**saved, "weights": saved["weights"][:-1]})
+    with pytest.raises(TrainError, match="bad field"):
+        PlumbLine.from_dict({k: v for k, v in saved.items() if k != "alpha"})
     (tmp_path / "bad.json").write_text("{")
     with pytest.raises(TrainError, match="bad.json"):
         PlumbLine.load(tmp_path / "bad.json")

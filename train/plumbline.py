@@ -290,10 +290,13 @@ class PlumbLine:
         if list(data.get("features", [])) != list(FEATURE_NAMES):
             raise TrainError("plumb-line detector: its feature list differs from this version's")
         try:
-            return cls(np.array(data["mean"], np.float64), np.array(data["scale"], np.float64),
-                       np.array(data["weights"], np.float64), float(data["intercept"]), float(data["alpha"]))
+            arrays = [np.array(data[key], np.float64) for key in ("mean", "scale", "weights")]
+            intercept, alpha = float(data["intercept"]), float(data["alpha"])
         except (KeyError, TypeError, ValueError) as exc:
             raise TrainError(f"plumb-line detector: bad field ({exc})") from None
+        if any(a.shape != (FEATURES,) for a in arrays):
+            raise TrainError(f"plumb-line detector: mean, scale and weights must hold {FEATURES} numbers each")
+        return cls(*arrays, intercept, alpha)
 
     def save(self, path: str | Path) -> None:
         """Write the detector as JSON."""

@@ -29,8 +29,8 @@ import numpy as np
 
 from train.errors import TrainError
 
-#: LSD runs on a copy at most this wide (INTER_AREA): long edges survive, texture fragments less, and it costs a
-#: quarter at 1392×512; the offsets are still measured on the full-resolution gradient.
+#: LSD runs on a copy at most this wide (INTER_AREA): long edges survive, texture fragments less (73 of 899 segments
+#: were long at full 1392×512), and it is faster; the offsets are still measured on the full-resolution gradient.
 DETECT_WIDTH = 720
 #: A segment counts when at least this long (fraction of the image diagonal, and pixels).
 MIN_LENGTH = 0.035
@@ -107,7 +107,7 @@ class _Offsets:
     offset: np.ndarray  # S×J
     valid: np.ndarray  # S×J bool
     points: np.ndarray  # S×J×2
-    normal: np.ndarray  # S×2, pointing away from the image centre
+    normal: np.ndarray  # S×2, pointing away from the centre
     t: np.ndarray  # J, 0…1 over the sampled span (the segment less its ends)
 
 

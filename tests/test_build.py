@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import random
+import shutil
 import subprocess
 import sys
 import time
@@ -13,11 +14,12 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from appdgen.geometry.appd import appd
+from appdgen.geometry.appd import appd, px_to_pct
 from appdgen.util.atomic import temporary_target
 from appdgen.calib.calibration import PARAMS, Calibration
-from appdgen.geometry.crop import valid_region
-from appdgen.dataset.layout import STAGES, member_record
+from appdgen.geometry.bend import split_warp
+from appdgen.geometry.crop import Crop, valid_region
+from appdgen.dataset.layout import BEND_COLUMNS, CROP_COLUMNS, STAGES, member_record
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
 from helpers import (Setup, assert_killed_build_sound, assert_one_line_error, assert_same_build, assert_shard_complete,
@@ -125,6 +127,7 @@ LABEL_COLUMNS = [
     *[(name, "double") for name in (*PARAMS, "new_fx", "new_fy", "new_cx", "new_cy")],
     ("width", "int32"), ("height", "int32"), ("appd_px", "double"), ("appd_pct", "double"), ("sha256", "string"),
     *[(name, "double") for name in ("crop_x0", "crop_y0", "crop_x1", "crop_y1")],
+    *[(name, "double") for name in ("bend_px", "bend_pct", "shift_x_px", "shift_y_px", "scale")],
 ]
 BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "images_sha256", "channels", "max_fov", "samples", "size", "format", "shard_size", "seed",
                    "appd_max", "zero_fraction", "interp", "ranges", "command", "counts", "shards", "sampler",
@@ -196,6 +199,65 @@ def test_shards_read_with_plain_webdataset(reference_build: Path, tmp_path: Path
     for sample, row in zip(samples, rows):
         assert sample["shape"] == [32, 87, 3] and sample["sha256"] == row["sha256"]
         assert sample["label"] == member_record(row)
+        assert not set(sample["label"]) & {"sha256", *CROP_COLUMNS, *BEND_COLUMNS}  # index-only: members keep bytes
+
+
+def bend_of_row(row: dict, reference: Calibration) -> dict[str, float]:
+    """The bend columns recomputed from a label row's own parameters and crop (split_warp, apart from the build)."""
+    calib = reference.replace(**{name: row[name] for name in PARAMS})
+    split = split_warp(reference, valid_region(reference), calib, Crop(*(row[name] for name in CROP_COLUMNS)))
+    return {"bend_px": split.bend_px, "bend_pct": px_to_pct(split.bend_px, reference), "shift_x_px": split.shift_x_px,
+            "shift_y_px": split.shift_y_px, "scale": split.scale}
+
+
+def test_bend_columns_are_the_split_of_each_rows_own_warp(reference_build: Path, small_camera: Calibration) -> None:
+    rows = pq.read_table(reference_build / "labels.parquet").to_pylist()
+    drawn = [r for r in rows if not r["is_reference"]]
+    assert len(drawn) >= 30
+    for row in drawn:
+        assert {name: row[name] for name in BEND_COLUMNS} == bend_of_row(row, small_camera)
+        assert row["bend_px"] <= 1.05 * row["appd_px"]
+        assert row["bend_pct"] == row["bend_px"] * 100 / small_camera.diagonal
+    assert len({round(r["bend_pct"], 6) for r in drawn}) == len(drawn)  # a column of its own, not a constant
+
+
+def test_reference_samples_have_exactly_no_bend(setup: Setup, small_camera: Calibration, tmp_path: Path) -> None:
+    rows = _build_rows(Setup(setup.calib, setup.images, samples=8, shard_size=8).args(
+        tmp_path / "out", "--zero-fraction", "0.6"))
+    references = [r for r in rows if r["is_reference"]]
+    assert references and all(r["appd_px"] == 0 for r in references)
+    assert all([r[name] for name in BEND_COLUMNS] == [0.0, 0.0, 0.0, 0.0, 1.0] for r in references)
+    assert all(r["bend_px"] > 0 for r in rows if not r["is_reference"])
+
+
+def test_an_interrupted_build_from_before_the_bend_columns_resumes_to_the_same_bytes(
+        setup: Setup, interrupted_build: Path, reference_build: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    shutil.copytree(interrupted_build, out)
+    fragments = sorted((out / ".parts").glob("*.parquet"))
+    assert fragments
+    for path in fragments:  # as the build before the bend columns wrote them (its stats in the metadata kept)
+        table = pq.read_table(path)
+        pq.write_table(table.drop_columns(list(BEND_COLUMNS)), path)
+    result = run_cli(setup.args(out, "--resume"))
+    assert result.exit_code == 0, result.output
+    assert_same_build(out, reference_build)
+
+
+def test_builds_from_before_the_bend_columns_still_read_and_verify(reference_build: Path, tmp_path: Path) -> None:
+    from appdgen.dataset.reader import open_build
+
+    old = tmp_path / "old"
+    shutil.copytree(reference_build, old)
+    table = pq.read_table(old / "labels.parquet")
+    pq.write_table(table.drop_columns(list(BEND_COLUMNS)), old / "labels.parquet")
+    build = open_build(old)
+    assert build.labels().num_rows == 40 and "bend_px" not in build.labels().column_names
+    assert next(build.samples())[2]["appd_pct"] == table["appd_pct"][0].as_py()
+    assert run_cli(["verify", str(old)]).exit_code == 0
+    pq.write_table(table.drop_columns(["bend_px"]), old / "labels.parquet")  # half the bend: not a known schema
+    result = run_cli(["verify", str(old)])
+    assert result.exit_code != 0 and "bend_px" in result.output
 
 
 # --- splits -----------------------------------------------------------------------------------------------------

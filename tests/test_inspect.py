@@ -121,6 +121,8 @@ def test_inspect_prints_the_counts(built: Path) -> None:
     bars = [line for line in text.splitlines() if line.startswith("  0.") and "–" in line]
     assert len(bars) == 10 and sum(int(line.split()[-1]) for line in bars) == SAMPLES
     assert "APPD evaluations and" in text and "samples/s" in text and "on disk: " in text
+    bend = pq.read_table(built / "labels.parquet")["bend_pct"].to_numpy()
+    assert f"bend (the non-affine part of APPD): {bend.min():.3f}–{bend.max():.3f} % (mean {bend.mean():.3f} %)" in text
 
 
 def test_histogram_bins_and_overflow() -> None:

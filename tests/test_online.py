@@ -194,7 +194,8 @@ def test_builds_from_before_the_crop_columns_still_verify(reference_build: Path,
     old = tmp_path / "old"
     shutil.copytree(reference_build, old)
     table = pq.read_table(old / "labels.parquet")
-    pq.write_table(table.drop_columns(["crop_x0", "crop_y0", "crop_x1", "crop_y1"]), old / "labels.parquet")
+    before = ["crop_x0", "crop_y0", "crop_x1", "crop_y1", "bend_px", "bend_pct", "shift_x_px", "shift_y_px", "scale"]
+    pq.write_table(table.drop_columns(before), old / "labels.parquet")  # nor the bend, which came after
     assert appdgen(["verify", str(old)]).exit_code == 0
     pq.write_table(table.drop_columns(["crop_x0"]), old / "labels.parquet")  # half the crop: not a known schema
     assert appdgen(["verify", str(old)]).exit_code != 0

@@ -9,7 +9,8 @@ import numpy as np
 
 from appdgen.calib.calibration import Calibration
 from appdgen.dataset.images import encode_image
-from appdgen.dataset.layout import FORMATS, STAGES, ShardStats, crop_columns, sample_key, shard_name
+from appdgen.dataset.layout import (FORMATS, STAGES, ShardStats, bend_columns, crop_columns, sample_key,
+                                    shard_name)
 from appdgen.dataset.shards import BuildWriter
 
 INTRINSICS = {"fx": 100.0, "fy": 100.0, "cx": 64.0, "cy": 64.0, "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "k3": 0.0}
@@ -73,16 +74,19 @@ def write_shards(
 
 def _row(index: int, shard: int, split: str, raw: int, appd_pct: float, reference: Calibration) -> dict:
     """One sample's label row (the build's label columns; K̂ is the reference's: nothing is cropped, so R is the
-    frame, [−0.5, w−0.5] × [−0.5, h−0.5] in normalized coordinates)."""
+    frame, [−0.5, w−0.5] × [−0.5, h−0.5] in normalized coordinates; the bend is made up like the label: half of it,
+    so that a fit on either target has something to learn)."""
     fx, fy, cx, cy = (INTRINSICS[k] for k in ("fx", "fy", "cx", "cy"))
+    appd_px = appd_pct / 100 * float(np.hypot(reference.width, reference.height))
     return {
         "key": sample_key(index), "shard": shard_name(shard), "raw_path": f"raw/rec{raw % 3}/{raw:06d}.png",
         "split": split, "camera": CAMERA, "model": reference.model, "sample_index": index, "is_reference": False,
         **INTRINSICS, **{f"new_{k}": INTRINSICS[k] for k in ("fx", "fy", "cx", "cy")},
         "width": reference.width, "height": reference.height,
-        "appd_px": appd_pct / 100 * float(np.hypot(reference.width, reference.height)), "appd_pct": appd_pct,
+        "appd_px": appd_px, "appd_pct": appd_pct,
         **crop_columns((-0.5 - cx) / fx, (-0.5 - cy) / fy, (reference.width - 0.5 - cx) / fx,
                        (reference.height - 0.5 - cy) / fy),
+        **bend_columns(appd_px / 2, appd_pct / 2, 0.0, 0.0, 1.0),
     }
 
 

@@ -22,18 +22,21 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from appdgen.version import __version__
 from appdgen.geometry.appd import px_to_pct
 from appdgen.util.atomic import atomic_write, temporary_target
 from appdgen.calib.calibration import Calibration
-from appdgen.geometry.crop import check_max_fov, check_output_size, valid_region
+from appdgen.geometry.bend import split_warp
+from appdgen.geometry.crop import Crop, check_max_fov, check_output_size, valid_region
 from appdgen.util.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.sources.decode import as_channels, read_image
 from appdgen.dataset.images import encode_image
 from appdgen.dataset.layout import (FORMATS, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES, ShardStats,
-                                    crop_columns, sample_key, shard_name, source_columns)
+                                    BEND_COLUMNS, CROP_COLUMNS, bend_columns, crop_columns, fragment_name,
+                                    sample_key, shard_name, source_columns)
 from appdgen.geometry.maps import Rectification
 from appdgen.util.progress import Progress
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
@@ -41,7 +44,7 @@ from appdgen.sampling.ranges import Range, default_ranges
 from appdgen.sampling.reach import UnreachableError
 from appdgen.sampling.options import DEFAULT_ZERO_FRACTION, SamplingOptions
 from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Sampler
-from appdgen.dataset.shards import BuildWriter
+from appdgen.dataset.shards import BuildWriter, read_stats
 from appdgen.sources.frames import Frame, RawImage
 from appdgen.sources.headers import check_complete
 
@@ -238,6 +241,8 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
         for index in config.shard_samples(shard):
             draw = sampler.draw(config.seed, index)
             evaluations += draw.evaluations
+            bend = warp_columns(config.reference, sampler.reference_rect.crop, draw.calib, draw.rect.crop,
+                                draw.is_reference)
             lap("sample")
             raw_image = config.image_for(index)
             raw = _raw(raw_image, frames, config.channels)
@@ -246,7 +251,7 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
             lap("remap")
             data = encode_image(image, config.ext)
             lap("encode")
-            row = _label_row(config, shard, index, raw_image, draw.is_reference, draw.rect, draw.appd_px)
+            row = _label_row(config, shard, index, raw_image, draw.is_reference, draw.rect, draw.appd_px, bend)
             tar.add_sample(row, config.ext, data)
             rows.append(row)
             lap("write")
@@ -309,9 +314,21 @@ def read_raw(path: Path, channels: int = 3) -> np.ndarray:
         raise RawImageError(str(exc)) from None
 
 
+def warp_columns(reference: Calibration, reference_crop: Crop, calib: Calibration, crop: Crop,
+                 is_reference: bool = False) -> dict[str, float]:
+    """A sample's layout.BEND_COLUMNS: split_warp from the reference rectification (raw px, % of the raw diagonal,
+    unitless scale); a reference sample exactly 0, 0, 0, 0, 1 (not the fit's rounding noise)."""
+    if is_reference:
+        return bend_columns(0.0, 0.0, 0.0, 0.0, 1.0)
+    split = split_warp(reference, reference_crop, calib, crop)
+    return bend_columns(split.bend_px, px_to_pct(split.bend_px, reference), split.shift_x_px, split.shift_y_px,
+                        split.scale)
+
+
 def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_reference: bool,
-               rect: Rectification, distance_px: float) -> dict:
-    """One sample's label: perturbed Θ, K̂ of its crop, output size and APPD (px and % of the diagonal)."""
+               rect: Rectification, distance_px: float, bend: dict[str, float]) -> dict:
+    """One sample's label: perturbed Θ, K̂ of its crop, output size, APPD (px and % of the diagonal), its crop and
+    its warp's split (`bend`, warp_columns)."""
     k = rect.new_camera_matrix
     return {
         "key": sample_key(index), "shard": shard_name(shard), "raw_path": image.name, "split": image.split,
@@ -320,7 +337,7 @@ def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_
         "new_fx": float(k[0, 0]), "new_fy": float(k[1, 1]), "new_cx": float(k[0, 2]), "new_cy": float(k[1, 2]),
         "width": config.size[0], "height": config.size[1],
         "appd_px": distance_px, "appd_pct": px_to_pct(distance_px, config.reference),
-        **crop_columns(rect.crop.x0, rect.crop.y0, rect.crop.x1, rect.crop.y1),
+        **crop_columns(rect.crop.x0, rect.crop.y0, rect.crop.x1, rect.crop.y1), **bend,
         **(_frame_columns(image.frame) if image.frame is not None else {}),
     }
 
@@ -401,6 +418,23 @@ def _remove_outputs(out: Path) -> None:
         shutil.rmtree(path) if path.is_dir() else path.unlink()
 
 
+def _add_bend_columns(config: BuildConfig, writer: BuildWriter, done: list[int]) -> None:
+    """Give the fragments of done shards that a build from before BEND_COLUMNS wrote their bend columns, from each
+    row's own parameters and crop (what a worker computes from the draw), so that the index has one schema."""
+    reference_crop = config.sampler().reference_rect.crop
+    for shard in done:
+        path = writer.parts / fragment_name(shard)
+        if set(BEND_COLUMNS) <= set(pq.read_schema(path).names):
+            continue
+        table = pq.read_table(path)
+        rows = table.to_pylist()
+        for row in rows:
+            calib = config.reference.replace(**{name: row[name] for name in config.reference.param_names})
+            crop = Crop(*(row[name] for name in CROP_COLUMNS))
+            row.update(warp_columns(config.reference, reference_crop, calib, crop, row["is_reference"]))
+        writer.shard_done(read_stats(table), rows)
+
+
 def pending_shards(out: Path, config: BuildConfig) -> list[int]:
     """Shards whose fragment (written last) or tar is missing."""
     writer = config.writer(out)
@@ -420,6 +454,8 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
     config = prepare_out(out, config, resume, overwrite)
     writer = config.writer(out)
     todo = pending_shards(out, config)
+    if resume:
+        _add_bend_columns(config, writer, [k for k in range(config.shards) if k not in todo])
     bar = Progress(config.samples, enabled=progress,
                    done=config.samples - sum(len(config.shard_samples(k)) for k in todo))
     bar.advance(0, "resumed" if resume else "")

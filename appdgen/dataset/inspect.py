@@ -12,7 +12,7 @@ import pyarrow.compute as pc
 
 from appdgen.calib.calibration import DEFAULT_MODEL
 from appdgen.dataset.images import decode_image
-from appdgen.dataset.layout import BUILD_JSON, INDEX, SHARD_GLOB, member_names
+from appdgen.dataset.layout import BEND_LABEL, BUILD_JSON, INDEX, SHARD_GLOB, member_names
 from appdgen.dataset.reader import counts, open_build, read_members, shard_path
 from appdgen.errors import AppdgenError
 
@@ -36,6 +36,7 @@ def summary(out: Path, bins: int = 10) -> str:
         "splits: " + ", ".join(f"{name} {n}" for name, n in counts(table["split"]).items()),
         f"reference samples (exactly the calibration, APPD 0): {pc.sum(table['is_reference']).as_py() or 0}",
         _label_line(pct, px, diagonal),
+        *_bend_line(table, pct),
         *histogram(pct, float(info.get("appd_max") or (pct.max() if pct.size else 1.0)), bins),
         *_speed_lines(info),
         _disk_line(out),
@@ -49,6 +50,15 @@ def _label_line(pct: np.ndarray, px: np.ndarray, diagonal: float) -> str:
         return "APPD labels: none"
     return (f"APPD labels: {pct.min():.3f}–{pct.max():.3f} % (mean {pct.mean():.3f} %) of the {diagonal:.1f} px "
             f"raw diagonal = {px.min():.2f}–{px.max():.2f} px (mean {px.mean():.2f} px)")
+
+
+def _bend_line(table: pa.Table, pct: np.ndarray) -> list[str]:
+    """'bend (the non-affine part): min–max (mean) in % of the diagonal, its share of APPD', for builds with it."""
+    if BEND_LABEL not in table.column_names or not pct.size:
+        return []
+    bend = table[BEND_LABEL].to_numpy()
+    return [f"bend (the non-affine part of APPD): {bend.min():.3f}–{bend.max():.3f} % (mean {bend.mean():.3f} %), "
+            f"{bend.sum() / max(pct.sum(), 1e-12):.0%} of APPD in all"]
 
 
 def histogram(values: np.ndarray, top: float, bins: int = 10, width: int = 40) -> list[str]:

@@ -42,9 +42,14 @@ RECORD_FIELD = RECORD_EXT.lstrip(".")  # … as WebDataset names that field
 #: Each sample's crop R (crop.Crop: x0, y0, x1, y1 in undistorted normalized coordinates), so that any build's
 #: labels are a bank of labelled calibrations (Θm, R, APPD) that can be rendered again without a search.
 CROP_COLUMNS = ("crop_x0", "crop_y0", "crop_x1", "crop_y1")
-#: Columns of labels.parquet that the `<key>.json` members leave out: the hash, and the crop (added after builds
-#: had shipped; the members, hence the shards, keep their bytes).
-INDEX_ONLY = (HASH_COLUMN, *CROP_COLUMNS)
+#: Each sample's warp from the reference rectification split into affine part and rest (geometry.bend.split_warp):
+#: the rest's mean length (raw px, and % of the raw diagonal like appd_pct), the affine part's shift at the image
+#: centre (raw px) and its zoom. Computed from the row's own parameters and crop; a reference sample is 0, 0, 0, 0, 1.
+BEND_LABEL = "bend_pct"
+BEND_COLUMNS = ("bend_px", BEND_LABEL, "shift_x_px", "shift_y_px", "scale")
+#: Columns of labels.parquet that the `<key>.json` members leave out: the hash, the crop and the bend (added after
+#: builds had shipped; the members, hence the shards, keep their bytes).
+INDEX_ONLY = (HASH_COLUMN, *CROP_COLUMNS, *BEND_COLUMNS)
 
 
 def shard_name(index: int) -> str:
@@ -81,13 +86,14 @@ STAGES = ("decode", "sample", "remap", "encode", "write")
 SOURCE_COLUMNS = (("source", "string"), ("topic", "string"), ("timestamp_ns", "int64"), ("frame", "int64"))
 
 
-def label_schema(params: Sequence[str], sources: bool = False, crop: bool = True) -> pa.Schema:
+def label_schema(params: Sequence[str], sources: bool = False, crop: bool = True, bend: bool = True) -> pa.Schema:
     """labels.parquet columns for a lens model's parameters `params` (fx, fy, cx, cy, then its coefficients),
-    with SOURCE_COLUMNS for a build from recordings (`sources`); crop=False: without CROP_COLUMNS, as builds
-    before them wrote it.
+    with SOURCE_COLUMNS for a build from recordings (`sources`); crop=False / bend=False: without CROP_COLUMNS /
+    BEND_COLUMNS, as builds before them wrote it.
 
     Units: parameters in raw pixels (fx…cy) or unitless (coefficients); new_* in output pixels; crop_* in
-    undistorted normalized coordinates; appd_px in raw pixels, appd_pct in % of the raw diagonal.
+    undistorted normalized coordinates; appd_px in raw pixels, appd_pct in % of the raw diagonal; bend_px,
+    shift_x_px, shift_y_px in raw pixels, bend_pct in % of the raw diagonal, scale unitless (> 1: a wider view).
     """
     import pyarrow as pa  # here, not at the top: the image codecs and synth import this module for FORMATS alone
 
@@ -99,8 +105,16 @@ def label_schema(params: Sequence[str], sources: bool = False, crop: bool = True
         ("width", pa.int32()), ("height", pa.int32()), ("appd_px", pa.float64()), ("appd_pct", pa.float64()),
         (HASH_COLUMN, pa.string()),
         *[(name, pa.float64()) for name in (CROP_COLUMNS if crop else ())],
+        *[(name, pa.float64()) for name in (BEND_COLUMNS if bend else ())],
         *((name, getattr(pa, kind)()) for name, kind in (SOURCE_COLUMNS if sources else ())),
     ])
+
+
+def known_schemas(params: Sequence[str], sources: bool = False) -> tuple[pa.Schema, ...]:
+    """Every label schema appdgen has written for these parameters, newest first: with crop and bend, with the crop
+    only (0.3.0 before the bend), with neither."""
+    return (label_schema(params, sources), label_schema(params, sources, bend=False),
+            label_schema(params, sources, crop=False, bend=False))
 
 
 def crop_columns(x0: float, y0: float, x1: float, y1: float) -> dict[str, float]:
@@ -112,6 +126,13 @@ def source_columns(source: str, topic: str, timestamp_ns: int, frame: int) -> di
     """A recording's frame (the recording as given, topic, timestamp ns, number from 0) as its SOURCE_COLUMNS values."""
     values = (source, topic, timestamp_ns, frame)
     return {name: value for (name, _), value in zip(SOURCE_COLUMNS, values, strict=True)}
+
+
+def bend_columns(bend_px: float, bend_pct: float, shift_x_px: float, shift_y_px: float,
+                 scale: float) -> dict[str, float]:
+    """A warp's split (raw px, % of the diagonal, unitless scale) as its BEND_COLUMNS values."""
+    return dict(zip(BEND_COLUMNS, (float(bend_px), float(bend_pct), float(shift_x_px), float(shift_y_px),
+                                   float(scale))))
 
 
 def member_record(row: dict) -> dict:

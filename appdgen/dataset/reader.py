@@ -21,7 +21,7 @@ from appdgen import lens
 from appdgen.calib.calibration import DEFAULT_MODEL, INTRINSICS, Calibration
 from appdgen.dataset.images import decode_image
 from appdgen.dataset.layout import (BUILD_JSON, FORMATS, FRAGMENT_GLOB, INDEX, PARTS_DIR, PLAN, SHARD_FILE,
-                                    label_schema, member_names)
+                                    known_schemas, member_names)
 from appdgen.errors import AppdgenError
 
 #: build.json's keys that are the build's options (what `appdgen build` was asked for, besides its inputs).
@@ -73,16 +73,15 @@ def model_params(info: dict) -> tuple[str, ...]:
 
 
 def read_index(out: Path, info: dict, columns: Sequence[str] | None = None) -> pa.Table:
-    """labels.parquet with the label schema of build.json's lens model (only `columns` when given); AppdgenError
-    naming the file otherwise."""
-    params, sources = model_params(info), from_recordings(info)
-    schema = label_schema(params, sources)
+    """labels.parquet with a label schema of build.json's lens model, this version's or an older build's (only
+    `columns` when given); AppdgenError naming the file otherwise."""
+    schemas = known_schemas(model_params(info), from_recordings(info))
     try:
         table = pq.read_table(out / INDEX)
     except (OSError, pa.ArrowException) as exc:
         raise AppdgenError(f"{INDEX}: unreadable ({exc})") from None
-    if not (table.schema.equals(schema) or table.schema.equals(label_schema(params, sources, crop=False))):
-        missing = [n for n in schema.names if n not in table.schema.names]
+    if not any(table.schema.equals(schema) for schema in schemas):
+        missing = [n for n in schemas[0].names if n not in table.schema.names]
         raise AppdgenError(f"{INDEX}: columns differ from appdgen's label schema"
                            + (f" (missing {', '.join(missing)})" if missing else ""))
     return table.select(list(columns)) if columns is not None else table

@@ -47,6 +47,9 @@ CROP_COLUMNS = ("crop_x0", "crop_y0", "crop_x1", "crop_y1")
 #: centre (raw px) and its zoom. Computed from the row's own parameters and crop; a reference sample is 0, 0, 0, 0, 1.
 BEND_LABEL = "bend_pct"
 BEND_COLUMNS = ("bend_px", BEND_LABEL, "shift_x_px", "shift_y_px", "scale")
+#: What a fit may learn (`python -m train fit --target`) → its label column: APPD (the paper's, the default) or its
+#: non-affine part.
+TARGETS: dict[str, str] = {"appd": LABEL_COLUMN, "bend": BEND_LABEL}
 #: Columns of labels.parquet that the `<key>.json` members leave out: the hash, the crop and the bend (added after
 #: builds had shipped; the members, hence the shards, keep their bytes).
 INDEX_ONLY = (HASH_COLUMN, *CROP_COLUMNS, *BEND_COLUMNS)

@@ -464,7 +464,7 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
     writer = config.writer(out)
     todo = pending_shards(out, config)
     if resume:
-        _add_bend_columns(config, writer, [k for k in range(config.shards) if k not in todo])
+        _add_bend_columns(config, writer, [k for k in range(config.shard_count) if k not in todo])
     bar = Progress(config.samples, enabled=progress,
                    done=config.samples - sum(len(config.shard_samples(k)) for k in todo))
     bar.advance(0, "resumed" if resume else "")

@@ -221,6 +221,13 @@ def test_bend_columns_are_the_split_of_each_rows_own_warp(reference_build: Path,
     assert len({round(r["bend_pct"], 6) for r in drawn}) == len(drawn)  # a column of its own, not a constant
 
 
+def test_the_fit_targets_are_label_columns_and_draw_values_alike() -> None:
+    from appdgen.dataset.layout import TARGETS
+    from appdgen.sampling.sampler import TARGETS as DRAW_TARGETS
+
+    assert tuple(TARGETS) == DRAW_TARGETS and TARGETS == {"appd": "appd_pct", "bend": "bend_pct"}
+
+
 def test_reference_samples_have_exactly_no_bend(setup: Setup, small_camera: Calibration, tmp_path: Path) -> None:
     rows = _build_rows(Setup(setup.calib, setup.images, samples=8, shard_size=8).args(
         tmp_path / "out", "--zero-fraction", "0.6"))

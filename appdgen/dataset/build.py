@@ -35,15 +35,15 @@ from appdgen.errors import AppdgenError
 from appdgen.sources.decode import as_channels, read_image
 from appdgen.dataset.images import encode_image
 from appdgen.dataset.layout import (FORMATS, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES, ShardStats,
-                                    BEND_COLUMNS, CROP_COLUMNS, LABEL_COLUMN, TARGETS, bend_columns, crop_columns,
-                                    fragment_name, sample_key, shard_name, source_columns)
+                                    BEND_COLUMNS, CROP_COLUMNS, bend_columns, crop_columns, fragment_name,
+                                    sample_key, shard_name, source_columns)
 from appdgen.geometry.maps import Rectification
 from appdgen.util.progress import Progress
 from appdgen.geometry.remap import DEFAULT_INTERP, remap_image
 from appdgen.sampling.ranges import Range, default_ranges
 from appdgen.sampling.reach import UnreachableError
 from appdgen.sampling.options import DEFAULT_ZERO_FRACTION, SamplingOptions
-from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Draw, Sampler
+from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Sampler
 from appdgen.dataset.shards import BuildWriter, read_stats
 from appdgen.sources.frames import Frame, RawImage
 from appdgen.sources.headers import check_complete
@@ -241,8 +241,7 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
         for index in config.shard_samples(shard):
             draw = sampler.draw(config.seed, index)
             evaluations += draw.evaluations
-            bend = warp_columns(config.reference, sampler.reference_rect.crop, draw.calib, draw.rect.crop,
-                                draw.is_reference)
+            bend = warp_columns(config.reference, sampler.reference_rect.crop, draw.calib, draw.rect.crop)
             lap("sample")
             raw_image = config.image_for(index)
             raw = _raw(raw_image, frames, config.channels)
@@ -314,24 +313,12 @@ def read_raw(path: Path, channels: int = 3) -> np.ndarray:
         raise RawImageError(str(exc)) from None
 
 
-def warp_columns(reference: Calibration, reference_crop: Crop, calib: Calibration, crop: Crop,
-                 is_reference: bool = False) -> dict[str, float]:
+def warp_columns(reference: Calibration, reference_crop: Crop, calib: Calibration, crop: Crop) -> dict[str, float]:
     """A sample's layout.BEND_COLUMNS: split_warp from the reference rectification (raw px, % of the raw diagonal,
-    unitless scale); a reference sample exactly 0, 0, 0, 0, 1 (not the fit's rounding noise)."""
-    if is_reference:
-        return bend_columns(0.0, 0.0, 0.0, 0.0, 1.0)
+    unitless scale); a reference sample exactly 0, 0, 0, 0, 1."""
     split = split_warp(reference, reference_crop, calib, crop)
     return bend_columns(split.bend_px, px_to_pct(split.bend_px, reference), split.shift_x_px, split.shift_y_px,
                         split.scale)
-
-
-def draw_label(target: str, reference: Calibration, reference_crop: Crop, draw: Draw) -> float:
-    """A draw's value of a fit's target (layout.TARGETS: appd or bend, % of the raw diagonal), as its build row has
-    it; the bend only computed when asked for."""
-    column = TARGETS[target]
-    if column == LABEL_COLUMN:
-        return px_to_pct(draw.appd_px, reference)
-    return warp_columns(reference, reference_crop, draw.calib, draw.rect.crop, draw.is_reference)[column]
 
 
 def _label_row(config: BuildConfig, shard: int, index: int, image: RawImage, is_reference: bool,
@@ -440,7 +427,7 @@ def _add_bend_columns(config: BuildConfig, writer: BuildWriter, done: list[int])
         for row in rows:
             calib = config.reference.replace(**{name: row[name] for name in config.reference.param_names})
             crop = Crop(*(row[name] for name in CROP_COLUMNS))
-            row.update(warp_columns(config.reference, reference_crop, calib, crop, row["is_reference"]))
+            row.update(warp_columns(config.reference, reference_crop, calib, crop))
         writer.shard_done(read_stats(table), rows)
 
 

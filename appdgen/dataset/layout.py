@@ -48,7 +48,7 @@ CROP_COLUMNS = ("crop_x0", "crop_y0", "crop_x1", "crop_y1")
 BEND_LABEL = "bend_pct"
 BEND_COLUMNS = ("bend_px", BEND_LABEL, "shift_x_px", "shift_y_px", "scale")
 #: What a fit may learn (`python -m train fit --target`) → its label column: APPD (the paper's, the default) or its
-#: non-affine part.
+#: non-affine part (sampling.sampler.TARGETS: the same names, and each one's value for a draw, for fit --online).
 TARGETS: dict[str, str] = {"appd": LABEL_COLUMN, "bend": BEND_LABEL}
 #: Columns of labels.parquet that the `<key>.json` members leave out: the hash, the crop and the bend (added after
 #: builds had shipped; the members, hence the shards, keep their bytes).

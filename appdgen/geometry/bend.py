@@ -43,6 +43,10 @@ class WarpSplit:
     appd_grid_px: float
 
 
+#: The split of a rectification against itself, exactly (a reference sample's: not the fit's rounding noise).
+NO_WARP = WarpSplit(bend_px=0.0, shift_x_px=0.0, shift_y_px=0.0, scale=1.0, appd_grid_px=0.0)
+
+
 def grid(calib: Calibration, columns: int = GRID_COLUMNS) -> tuple[np.ndarray, np.ndarray]:
     """Pixel centres (u, v) of a columns × rows grid over a raw-size output image, in output pixels."""
     width, height = calib.size
@@ -67,9 +71,12 @@ def _raw(calib: Calibration, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, 
 
 def split_warp(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop,
                columns: int = GRID_COLUMNS) -> WarpSplit:
-    """The affine/non-affine split of the warp from the reference rectification to the sample's (raw pixels)."""
+    """The affine/non-affine split of the warp from the reference rectification to the sample's (raw pixels);
+    NO_WARP, exactly, for the reference rectification itself."""
     if reference.size != sample.size:
         raise ValueError(f"calibrations differ in raw size: {reference.size} vs {sample.size}")
+    if sample == reference and sample_crop == reference_crop:
+        return NO_WARP
     u, v = grid(reference, columns)
     raw_u, raw_v = _raw(sample, *_normalized(sample_crop, sample, u, v))  # M̂m(p)
     x, y = undistort_pixels(raw_u, raw_v, reference)

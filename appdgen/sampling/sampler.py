@@ -20,6 +20,7 @@ import numpy as np
 from appdgen.calib.calibration import Calibration
 from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import appd_px, px_to_pct
+from appdgen.geometry.bend import split_warp
 from appdgen.geometry.crop import Crop, check_max_fov, valid_region
 from appdgen.geometry.maps import Rectification, rectify
 from appdgen.sampling.estimate import CoarseEstimator
@@ -156,3 +157,17 @@ class Sampler:
             return None
         distance = appd_px(self.reference_rect, rect)
         return Label(px_to_pct(distance, self.reference), rect, distance)
+
+
+#: What a fit may learn of a draw (`python -m train fit --target`), each a length in raw pixels: its APPD (the
+#: paper's label) or the non-affine part of its warp (geometry.bend); dataset.layout.TARGETS names their columns.
+TARGETS = ("appd", "bend")
+
+
+def target_px(sampler: Sampler, draw: Draw, target: str) -> float:
+    """A labelled draw's value of a fit target (TARGETS), raw pixels: what `appdgen build` writes for the sample."""
+    if target == "appd":
+        return draw.appd_px
+    if target == "bend":
+        return split_warp(sampler.reference, sampler.reference_rect.crop, draw.calib, draw.rect.crop).bend_px
+    raise AppdgenError(f"--target {target!r}: expected one of {', '.join(TARGETS)}")

@@ -213,3 +213,27 @@ def test_online_vs_offline_benchmark_prints_its_table(tmp_path):
     assert result.returncode == 0, result.stderr
     rows = [line for line in result.stdout.splitlines() if line.startswith("| 1 |")]
     assert len(rows) == 1 and rows[0].count("|") == 6
+
+
+def test_bend_pairs_carry_the_builds_bend_labels(reference_build: Path, setup: Setup):
+    build = json.loads((reference_build / "build.json").read_text())
+    opts = OnlineOptions(str(setup.calib), str(setup.images), size=setup.size, interp=build["interp"])
+    rows = pq.read_table(reference_build / "labels.parquet").to_pylist()[:8]
+    for target, column in (("bend", "bend_pct"), ("appd", "appd_pct")):
+        scene, images = open_recipe(opts, target)
+        batch = PairSpec(scene, decode_frames(images), seed=setup.seed, batch=8, render="cpu", count=8)
+        labels = next(iter(pair_loader(batch, 0)))["label"]
+        assert labels.tolist() == torch.tensor([r[column] for r in rows], dtype=torch.float32).tolist()
+    assert any(r["bend_pct"] < 0.5 * r["appd_pct"] for r in rows)  # the two targets differ
+
+
+def test_online_fit_on_bend_records_it_and_resume_keeps_it(frames, tmp_path, capsys):
+    run = tmp_path / "bend"
+    main(fit_args(frames, run, "--steps", 2, "--ckpt-every", 2, "--render", "cpu", "--target", "bend"))
+    state = checkpoint.load(run / "last.pt")
+    assert checkpoint.target(state) == "bend" and state["config"]["label"] == "bend_pct"
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        main(fit_args(frames, run, "--steps", 3, "--render", "cpu", "--resume"))  # --target appd by default
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "trained on --target bend" in err and err.count("\n") == 1, err

@@ -423,3 +423,76 @@ def test_experiment_runs_every_stage_and_prints_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit):  # 278x102 cannot pass 7 max-pools: refused before any frame is drawn
         run_cli(["experiment", "--tiny", "--scale", 0.2, "--out", tmp_path / "small"], capsys)
     assert "too small" in capsys.readouterr().err and not (tmp_path / "small").exists()
+
+
+# --- --target bend ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def bend_run(shards, tmp_path_factory) -> Path:
+    """A short fit on the synthetic shards' bend_pct (half of their APPD, see train.synthetic)."""
+    run = tmp_path_factory.mktemp("runs") / "bend"
+    main(["fit", "--shards", str(shards), "--run", str(run), "--steps", "4", "--batch", "8", "--ckpt-every", "4",
+          "--workers", "0", "--val-fraction", "0.2", "--target", "bend", "--quiet"])
+    return run
+
+
+def test_fit_on_bend_learns_the_bend_column_and_evaluate_scores_it(bend_run, shards, tmp_path, capsys):
+    import pyarrow.parquet as pq
+    from train import checkpoint
+
+    state = checkpoint.load(bend_run / "last.pt")
+    assert checkpoint.target(state) == "bend" and state["config"]["label"] == "bend_pct"
+    rows = pq.read_table(shards / "labels.parquet").to_pylist()
+    sel = state["config"]["data"]
+    train_bend = [r["bend_pct"] for r in rows if r["split"] == "train"]
+    assert sel["n_train"] < len(train_bend)  # a holdout took some of the train split …
+    assert 0.3 * np.mean(train_bend) < checkpoint.label_mean(state) < 0.7 * np.mean(
+        [r["appd_pct"] for r in rows if r["split"] == "train"])  # … and the mean is the bend's, not the APPD's
+    capsys.readouterr()
+    main(["evaluate", "--ckpt", str(bend_run / "last.pt"), "--shards", str(shards), "--workers", "0"])
+    out = capsys.readouterr()
+    result = json.loads(out.out)
+    test_bend = np.array([r["bend_pct"] for r in rows if r["split"] == "test"])
+    assert result["target"] == "bend" and result["label"] == "bend_pct" and "(bend_pct)" in out.err
+    assert result["mean_predictor_mae"] == pytest.approx(np.abs(checkpoint.label_mean(state) - test_bend).mean())
+
+
+def test_resume_refuses_another_target(bend_run, shards, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", "--shards", str(shards), "--run", str(bend_run), "--steps", "6", "--batch", "8", "--workers",
+              "0", "--resume", "--quiet"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "trained on --target bend" in err and err.count("\n") == 1, err
+
+
+def test_bend_on_a_build_from_before_the_bend_columns_is_one_line(shards, tmp_path, capsys):
+    import pyarrow.parquet as pq
+
+    old = tmp_path / "old"
+    shutil.copytree(shards, old)
+    table = pq.read_table(old / "labels.parquet")
+    pq.write_table(table.drop_columns(["bend_px", "bend_pct", "shift_x_px", "shift_y_px", "scale"]),
+                   old / "labels.parquet")
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", "--shards", str(old), "--run", str(tmp_path / "run"), "--steps", "1", "--target", "bend",
+              "--workers", "0", "--quiet"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and str(old) in err and "bend_pct" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_predict_says_what_the_network_was_trained_on(bend_run, shards, capsys):
+    import tarfile
+
+    folder = bend_run.parent / "imgs"  # two of the shards' images as files
+    folder.mkdir(exist_ok=True)
+    with tarfile.open(sorted(shards.glob("shard-*.tar"))[0]) as tar:
+        pngs = [m for m in tar.getmembers() if m.name.endswith(".png")][:2]
+        for m in pngs:
+            (folder / m.name).write_bytes(tar.extractfile(m).read())
+    capsys.readouterr()
+    main(["predict", "--ckpt", str(bend_run / "last.pt"), str(folder), "--json", "--device", "cpu"])
+    assert json.loads(capsys.readouterr().out)["summary"]["target"] == "bend"
+    main(["predict", "--ckpt", str(bend_run / "last.pt"), str(folder), "--device", "cpu"])
+    assert "running median of bend_pct" in capsys.readouterr().out

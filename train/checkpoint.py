@@ -9,7 +9,7 @@ import torch
 
 from appdgen.util.atomic import atomic_stream
 from train.errors import TrainError
-from appdgen.dataset.layout import LABEL_COLUMN
+from appdgen.dataset.layout import TARGETS
 from train.model import NORMALIZE, AppdNet, ModelConfig
 
 FORMAT = "appdgen-train/1"
@@ -24,11 +24,18 @@ def check_normalize(normalize: str) -> None:
         raise TrainError(f"--normalize must be one of {', '.join(NORMALIZE)}, got {normalize!r}")
 
 
+def check_target(target: str) -> str:
+    """The label column of a --target (layout.TARGETS), refusing another name."""
+    if target not in TARGETS:
+        raise TrainError(f"--target must be one of {', '.join(TARGETS)}, got {target!r}")
+    return TARGETS[target]
+
+
 def fresh(opts, size: tuple[int, int], stats: tuple[list[float], list[float], np.ndarray], channels: str,
           config: dict) -> dict:
     """A new run's checkpoint: untrained weights seeded by opts.seed, input normalisation from the run's own images
     (per-channel mean and std in [0, 1], and the mean image C×H×W), and `config` (label mean, appd_max, crop rule,
-    data) completed with the model, the label column, fit's options and torch's version."""
+    data) completed with the model, the target and its label column, fit's options and torch's version."""
     mean, std, mean_image = stats
     torch.manual_seed(opts.seed)
     model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), channels=channels,
@@ -36,7 +43,7 @@ def fresh(opts, size: tuple[int, int], stats: tuple[list[float], list[float], np
     if opts.normalize == "pixel":
         with torch.no_grad():
             model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])
-    config = {"model": model.cfg.to_dict(), "label": LABEL_COLUMN, **config,
+    config = {"model": model.cfg.to_dict(), "target": opts.target, "label": check_target(opts.target), **config,
               "fit": asdict(opts), "versions": {"torch": str(torch.__version__)}}  # TorchVersion is not weights_only-safe
     return {"step": 0, "model": model.state_dict(), "optimizer": None, "config": config, "best_val_mae": None}
 
@@ -88,8 +95,18 @@ def build_model(ckpt: dict) -> AppdNet:
     return model.eval()
 
 
+def target(ckpt: dict) -> str:
+    """What the checkpoint's network predicts (a layout.TARGETS name; checkpoints from before --target: appd)."""
+    return str(ckpt["config"].get("target", "appd"))
+
+
+def label_column(ckpt: dict) -> str:
+    """The label column the checkpoint's network predicts (appd_pct, or bend_pct)."""
+    return TARGETS[target(ckpt)]
+
+
 def label_mean(ckpt: dict) -> float:
-    """Mean training label (APPD %): what the trivial mean predictor outputs."""
+    """Mean training label (the target's, % of the diagonal): what the trivial mean predictor outputs."""
     return float(ckpt["config"]["label_mean"])
 
 

@@ -9,6 +9,7 @@ from dataclasses import asdict
 import click
 
 from appdgen.cli.base import recording_options, stack_options
+from appdgen.dataset.layout import TARGETS
 from train.errors import TrainError
 
 DEVICE = click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
@@ -97,6 +98,9 @@ def online_from(kw: dict) -> None:
               help="Images used for the per-channel mean/std.")
 @click.option("--normalize", default="channel", show_default=True, type=click.Choice(["channel", "pixel"]),
               help="Input normalisation: per-channel mean/std, or the released code's per-pixel mean image.")
+@click.option("--target", default="appd", show_default=True, type=click.Choice(list(TARGETS)),
+              help="What the network learns: appd = APPD (appd_pct, the paper's label); bend = its non-affine part "
+                   "(bend_pct, what bends straight lines; from labels.parquet offline, from each draw online).")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @online_options
 def fit(**kw) -> None:
@@ -179,7 +183,8 @@ def evaluate(ckpt: str, shards: str, split: str, json_path: str | None, plot_pat
 def summary_line(result: dict) -> str:
     """'split: MAE … vs mean predictor … (ratio …)' in % of the diagonal, for a human reading the run."""
     ratio = result["mae_vs_mean_predictor"]
-    return (f"evaluate: {result['split']} MAE {result['mae']:.3f} % vs mean-predictor MAE "
+    target = "" if result["target"] == "appd" else f" ({result['label']})"
+    return (f"evaluate: {result['split']}{target} MAE {result['mae']:.3f} % vs mean-predictor MAE "
             f"{result['mean_predictor_mae']:.3f} % (ratio {'n/a' if ratio is None else f'{ratio:.2f}'}) "
             f"on {result['n']} images")
 
@@ -208,7 +213,7 @@ def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str |
             device: str) -> None:
     """Predicted APPD per image of a sequence (IMAGES… or a folder, or one ROS bag or video: its frames with their
     timestamps), running median and verdict."""
-    from train.predict import Frames, predict_stream
+    from train.predict import Frames, predict_stream, trained_target
 
     if as_csv and as_json:
         raise click.UsageError("--csv and --json are exclusive")
@@ -232,13 +237,16 @@ def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str |
             stamp = "" if last.timestamp_ns is None else f"{last.timestamp_ns}\t"
             click.echo(f"{stamp}{last.path}\t{last.appd_pct:7.3f}\t{last.running_median:7.3f}\t"
                        f"{'recalibrate' if last.recalibrate else 'ok'}")
+    target = trained_target(ckpt)
     summary = {"images": count, "running_median": last.running_median, "threshold": threshold,
-               "verdict": "recalibrate" if last.recalibrate else "ok", "skipped_frames": len(frames.skipped)}
+               "verdict": "recalibrate" if last.recalibrate else "ok", "skipped_frames": len(frames.skipped),
+               "target": target}
     if as_json:
         click.echo(json.dumps({"predictions": rows, "summary": summary}, indent=1))
     elif not as_csv:
         skipped = f", {len(frames.skipped)} undecodable frames skipped" if frames.skipped else ""
-        click.echo(f"# {count} images{skipped}, running median {last.running_median:.3f}% "
+        trained = "" if target == "appd" else f" of {TARGETS[target]}"
+        click.echo(f"# {count} images{skipped}, running median{trained} {last.running_median:.3f}% "
                    f"(window {window}) vs threshold {threshold:g}%: {summary['verdict']}")
 
 

@@ -13,8 +13,8 @@ import webdataset as wds
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from appdgen.dataset import images
-from appdgen.dataset.layout import (BUILD_JSON, FORMATS, LABEL_COLUMN, RECORD_EXT, RECORD_FIELD, SAMPLE_FIELDS,
-                                    SHARD_GLOB, SOURCE_COLUMNS)
+from appdgen.dataset.layout import (BUILD_JSON, FORMATS, INDEX, LABEL_COLUMN, RECORD_EXT, RECORD_FIELD,
+                                    SAMPLE_FIELDS, SHARD_GLOB, SOURCE_COLUMNS, TARGETS)
 from appdgen.dataset.reader import ShardEntry as Shard
 from appdgen.dataset.reader import index_columns, open_build
 from train.errors import TrainError
@@ -95,15 +95,27 @@ class _AllSplits(dict):
 LABEL_COLUMNS = ("key", "split", "raw_path", LABEL_COLUMN)
 
 
-def read_labels(root: Path) -> dict[str, list] | None:
-    """Columns key, split, raw_path, appd_pct (and source, for a build from recordings) of the build's label
-    table, or None when it has none."""
-    table = index_columns(Path(root), LABEL_COLUMNS, optional=[SOURCE_COLUMNS[0][0]])
+def read_labels(root: Path, target: str = "appd") -> dict[str, list] | None:
+    """Columns key, split, raw_path, appd_pct, the target's label column (layout.TARGETS) and, for a build from
+    recordings, source of the build's label table, or None when it has none (refused for a target other than
+    appd, whose labels only the table holds)."""
+    column = TARGETS[target]
+    table = index_columns(Path(root), LABEL_COLUMNS, optional=[column, SOURCE_COLUMNS[0][0]])
+    if column != LABEL_COLUMN and (table is None or column not in table.column_names):
+        why = f"no {INDEX}" if table is None else f"its {INDEX} has no {column} column (built before it)"
+        raise TrainError(f"{root}: --target {target} needs {column}, but {why}: rebuild it, or use --target appd")
     if table is None:
         return None
     cols = table.to_pydict()
     cols["key"] = [str(k) for k in cols["key"]]  # json keys are strings; match them whatever parquet typed
     return cols
+
+
+def target_labels(labels: Mapping[str, list] | None, target: str) -> dict[str, float] | None:
+    """key → the target's label from read_labels' columns, for a stream to use instead of the json members' appd_pct;
+    None for appd (the members hold it)."""
+    column = TARGETS[target]
+    return None if column == LABEL_COLUMN or labels is None else dict(zip(labels["key"], labels[column]))
 
 
 @dataclass(frozen=True)
@@ -192,6 +204,7 @@ class StreamSpec:
     limit: int | None = None
     skip_batches: int = 0  # batches of `batch` samples the DataLoader already delivered (a resumed run's step)
     batch: int = 1
+    labels: Mapping[str, float] | None = None  # key → label (target_labels); None: the json members' appd_pct
 
     def skip(self, worker: int, workers: int) -> int:
         """Samples loader worker `worker` of `workers` already produced: the DataLoader takes batch j from worker
@@ -200,7 +213,8 @@ class StreamSpec:
 
 
 class ShardStream(IterableDataset):
-    """Yields {"image": uint8 3×H×W, "label": float32 APPD %, "key": str}; each sample once per pass.
+    """Yields {"image": uint8 3×H×W, "label": float32 (APPD %, or spec.labels'), "key": str}; each sample once per
+    pass.
 
     Slots are (rank, worker) pairs. When the shards divide evenly among slots, each slot reads whole
     shards (as wds.split_by_node then wds.split_by_worker would); otherwise every slot reads all
@@ -276,9 +290,14 @@ class ShardStream(IterableDataset):
         if self.spec.size is not None and (img.shape[1], img.shape[0]) != tuple(self.spec.size):
             w, h = self.spec.size
             raise TrainError(f"{where}: image is {img.shape[1]}x{img.shape[0]}, expected {w}x{h}")
-        label = meta.get(LABEL_COLUMN)
-        if label is None:
-            raise TrainError(f"{where}: json has no {LABEL_COLUMN} label")
+        if self.spec.labels is not None:
+            label = self.spec.labels.get(str(meta.get("key")))
+            if label is None:
+                raise TrainError(f"{where}: not in {INDEX}")
+        else:
+            label = meta.get(LABEL_COLUMN)
+            if label is None:
+                raise TrainError(f"{where}: json has no {LABEL_COLUMN} label")
         return {
             "image": torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1))),
             "label": torch.tensor(float(label), dtype=torch.float32),
@@ -318,7 +337,8 @@ def channel_stats(spec: StreamSpec, n: int, n_total: int | None
     per-pixel mean image (C×H×W float32)."""
     stride = max(1, (n_total or n) // n)
     # A 'world' of `stride` ranks in sample mode picks every stride-th sample: spread, not the first n.
-    sub = StreamSpec(spec.shards, spec.selection, spec.size, world=stride, force_sample_mode=True, limit=n)
+    sub = StreamSpec(spec.shards, spec.selection, spec.size, world=stride, force_sample_mode=True, limit=n,
+                     labels=spec.labels)
     stats = PixelStats()
     labels: list[float] = []
     for sample in ShardStream(sub):

@@ -9,7 +9,8 @@ import numpy as np
 import torch
 
 from train import checkpoint, runtime
-from train.data import Selection, StreamSpec, make_loader, open_shards
+from appdgen.dataset.layout import TARGETS
+from train.data import Selection, StreamSpec, make_loader, open_shards, read_labels, target_labels
 from train.errors import TrainError
 from train.loop import to_input
 from train.model import AppdNet
@@ -129,12 +130,15 @@ def evaluate(ckpt_path: str, shards: str, split: str, json_path: str | None = No
     mismatch = checkpoint.rule_mismatch(ckpt, ss.rectify_rule())
     if mismatch:  # a legitimate cross-rule experiment, but not the detector's training distribution
         print(f"evaluate: note: {mismatch}", file=sys.stderr)
-    cfg = model.cfg
-    spec = StreamSpec(ss.for_split(split), Selection(split), (cfg.width, cfg.height))
+    cfg, target = model.cfg, checkpoint.target(ckpt)
+    # appd: the json members' label; another target's only labels.parquet holds.
+    labels = None if target == "appd" else target_labels(read_labels(ss.root, target), target)
+    spec = StreamSpec(ss.for_split(split), Selection(split), (cfg.width, cfg.height), labels=labels)
     _, y_true, y_pred = predict_split(model, make_loader(spec, batch, workers), dev,
                                       runtime.autocast_dtype(dev, precision))
     appd_max = ss.appd_max or ckpt["config"].get("appd_max") or float(max(y_true.max(), 1e-6))
-    result = {"checkpoint": str(ckpt_path), "shards": str(ss.root), "split": split,
+    result = {"checkpoint": str(ckpt_path), "shards": str(ss.root), "split": split, "target": target,
+              "label": TARGETS[target],
               **metrics(y_true, y_pred, checkpoint.label_mean(ckpt), appd_max, threshold)}
     if json_path:
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)

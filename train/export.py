@@ -28,7 +28,8 @@ def metadata(model: AppdNet, ckpt: dict) -> dict:
     return {
         "input": f"float32 N x {cfg.in_channels} x {cfg.height} x {cfg.width}, values in [0, 1], channel order "
                  f"{cfg.channels}",
-        "output": "float32 N: predicted APPD, % of the raw image diagonal",
+        "output": f"float32 N: predicted {checkpoint.label_column(ckpt)}, % of the raw image diagonal",
+        "target": checkpoint.target(ckpt),
         "normalization": "included in the model", "width": cfg.width, "height": cfg.height,
         "channels": cfg.channels, "label_mean": checkpoint.label_mean(ckpt), "step": int(ckpt["step"]),
         "rectify": checkpoint.rectify_rule(ckpt),  # rectify raw images as the training build did (max_fov, interp)

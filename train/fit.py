@@ -3,16 +3,18 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import torch
 
-from appdgen.dataset.layout import BUILD_JSON, INDEX, LABEL_COLUMN
+from appdgen.dataset.layout import BUILD_JSON, INDEX, TARGETS
 from train import checkpoint, runtime
 from train.data import (
     Selection, ShardSet, ShardStream, StreamSpec, channel_stats, count_selected, make_loader, open_shards, read_labels,
+    target_labels,
 )
 from train.errors import TrainError
 from train.holdout import holdout_unit, val_choice
@@ -53,18 +55,21 @@ class FitOptions:
     precision: str = "auto"
     stats_samples: int = 256
     normalize: str = "channel"  # "channel": per-channel mean/std; "pixel": a per-pixel mean image, channel std
+    target: str = "appd"  # what the network learns (layout.TARGETS): appd_pct, the paper's, or bend_pct
     quiet: bool = False
     online: "OnlineOptions | None" = None  # train on fresh pairs drawn as it goes (train.online), not shards
 
 
 @dataclass(frozen=True)
 class DataPlan:
-    """Train and validation selections and their sizes (None when unknown)."""
+    """Train and validation selections and their sizes (None when unknown), and the labels they are read with
+    (key → the --target's label; None: the json members' appd_pct)."""
 
     train: Selection
     val: Selection | None
     n_train: int | None
     n_val: int | None
+    labels: Mapping[str, float] | None = None
 
 
 def only_split(ss: ShardSet, opts: FitOptions) -> FitOptions:
@@ -122,9 +127,10 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
     size = sample_size(ss, plan.train)
     check_size(*size)
     checkpoint.check_normalize(opts.normalize)
-    spec = StreamSpec(ss.for_split(plan.train.split), plan.train, size)
+    spec = StreamSpec(ss.for_split(plan.train.split), plan.train, size, labels=plan.labels)
     mean, std, sub_labels, mean_image = channel_stats(spec, opts.stats_samples, plan.n_train)
-    label_mean = _train_label_mean(labels, plan.train) if labels else sum(sub_labels) / len(sub_labels)
+    label_mean = (_train_label_mean(labels, plan.train, TARGETS[opts.target]) if labels
+                  else sum(sub_labels) / len(sub_labels))
     channels = "grey" if len(mean) == 1 else "bgr"  # the build's samples: 1 channel from a mono source
     return checkpoint.fresh(opts, size, (mean, std, mean_image), channels, {
         "label_mean": label_mean, "appd_max": ss.appd_max,
@@ -133,9 +139,9 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
                  "val": plan.val.describe() if plan.val else None, "n_train": plan.n_train, "n_val": plan.n_val}})
 
 
-def _train_label_mean(labels: dict, sel: Selection) -> float:
-    """Mean appd_pct over a selection's rows of labels.parquet (exact, no image decoding)."""
-    vals = [a for k, s, r, a in zip(labels["key"], labels["split"], labels["raw_path"], labels[LABEL_COLUMN])
+def _train_label_mean(labels: dict, sel: Selection, column: str) -> float:
+    """Mean label (`column`, e.g. appd_pct) over a selection's rows of labels.parquet (exact, no image decoding)."""
+    vals = [a for k, s, r, a in zip(labels["key"], labels["split"], labels["raw_path"], labels[column])
             if sel.accepts({"key": k, "split": s, "raw_path": r})]
     return sum(vals) / len(vals)
 
@@ -190,8 +196,8 @@ def shard_trainer(opts: FitOptions, device: torch.device, rank: int, world: int,
         raise TrainError("give --shards (a build folder), or --online with --calib and --images")
     ss = open_shards(opts.shards)
     opts = only_split(ss, opts)
-    labels = read_labels(ss.root)
-    plan = plan_data(ss, labels, opts)
+    labels = read_labels(ss.root, opts.target)
+    plan = dataclasses.replace(plan_data(ss, labels, opts), labels=target_labels(labels, opts.target))
     steps = total_steps(opts, plan.n_train, world)
     if rank == 0:
         run.mkdir(parents=True, exist_ok=True)
@@ -213,13 +219,13 @@ class ShardTrainer(Trainer):
         """Infinite shuffled training batches for this rank, from where step `step` left the data."""
         spec = StreamSpec(self.ss.for_split(self.plan.train.split), self.plan.train, self.size, loop=True,
                           shuffle=True, seed=self.opts.seed, buffer=self.opts.shuffle_buffer, rank=self.rank,
-                          world=self.world, skip_batches=step, batch=self.opts.batch)
+                          world=self.world, skip_batches=step, batch=self.opts.batch, labels=self.plan.labels)
         return iter(make_loader(spec, self.opts.batch, self.opts.workers))
 
     def val_loader(self):
         """Validation batches in shard order (rank 0 validates alone)."""
         sel = self.plan.val
-        spec = StreamSpec(self.ss.for_split(sel.split), sel, self.size)
+        spec = StreamSpec(self.ss.for_split(sel.split), sel, self.size, labels=self.plan.labels)
         return make_loader(spec, self.opts.batch, self.opts.workers)
 
     def announce(self, step: int, steps: int) -> None:
@@ -228,7 +234,8 @@ class ShardTrainer(Trainer):
             return
         p, cfg = self.plan, self.model.cfg
         val = f"{p.val.describe()} ({p.n_val} samples)" if p.val else "none"
-        print(f"fit: {cfg.width}x{cfg.height} px, train {p.train.describe()} ({p.n_train} samples), "
+        print(f"fit: {cfg.width}x{cfg.height} px, {TARGETS[self.opts.target]}, train {p.train.describe()} "
+              f"({p.n_train} samples), "
               f"val {val}, steps {step}→{steps}, "
               f"batch {self.opts.batch}×{self.world}, {self.device}, autocast {self.dtype or 'off'}, "
               f"{torch.get_num_threads()} threads", file=sys.stderr)

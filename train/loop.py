@@ -35,7 +35,8 @@ def total_steps(opts, n_train: int | None, world: int) -> int:
 
 
 def resumed(run: Path, opts) -> dict | None:
-    """run/last.pt with --resume, None to start fresh; refuses to overwrite a run without --resume."""
+    """run/last.pt with --resume, None to start fresh; refuses to overwrite a run without --resume, and to resume
+    one trained on another --target."""
     last = run / "last.pt"
     if last.exists() and not opts.resume:
         raise TrainError(f"{last} exists: pass --resume to continue it, or choose another --run")
@@ -43,7 +44,12 @@ def resumed(run: Path, opts) -> dict | None:
         if opts.resume:
             print(f"fit: --resume but no {last}; starting fresh", file=sys.stderr)
         return None
-    return checkpoint.load(last)
+    state = checkpoint.load(last)
+    trained = checkpoint.target(state)
+    if trained != opts.target:
+        raise TrainError(f"{last}: trained on --target {trained}; resume with --target {trained}, or choose another "
+                         f"--run")
+    return state
 
 
 class CsvLog:

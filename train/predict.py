@@ -218,6 +218,11 @@ def predict(ckpt_path: str, inputs: list[str], calib: str | None = None, camera:
                                frames))
 
 
+def trained_target(ckpt_path: str) -> str:
+    """What a checkpoint's network predicts (layout.TARGETS: appd, or bend), for predict's summary."""
+    return checkpoint.target(checkpoint.load(ckpt_path))
+
+
 def predict_stream(ckpt_path: str, inputs: list[str], calib: str | None = None, camera: str | None = None,
                    threshold: float = 1.0, window: int = 9, batch: int = 32, resize: bool = False,
                    device: str = "auto", max_fov: float | None = None, frames: Frames | None = None

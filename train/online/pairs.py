@@ -10,7 +10,6 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
-from appdgen.geometry.appd import px_to_pct
 from train.online.recipe import PairRecipe
 
 #: The seed of the validation pairs: fixed, not the run's, so that every run validates on the same images.
@@ -78,7 +77,7 @@ class PairStream(IterableDataset):
                 images.append(s.recipe.render(s.frames[frame], draw).transpose(2, 0, 1))
             render_s += time.perf_counter() - t1
             draw_s += t1 - t0
-            labels.append(px_to_pct(draw.appd_px, s.recipe.reference))
+            labels.append(s.recipe.label(draw))
             frames.append(frame)
             params.append(list(draw.calib.params().values()))
             new_ks.append(draw.rect.new_camera_matrix)

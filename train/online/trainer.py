@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from train import checkpoint
-from train.data import Selection, StreamSpec, make_loader, open_shards
+from train.data import Selection, StreamSpec, make_loader, open_shards, read_labels, target_labels
 from train.errors import TrainError
 from train.holdout import frame_sides, val_choice
 from train.loop import Trainer, resumed, total_steps
@@ -37,7 +37,7 @@ class OnlineData:
     def __init__(self, opts, device: torch.device, rank: int, world: int) -> None:
         o: OnlineOptions = opts.online
         self.opts, self.device, self.rank, self.world = opts, device, rank, world
-        self.recipe, images = open_recipe(o)
+        self.recipe, images = open_recipe(o, opts.target)
         check_size(*self.recipe.size)
         self.render = pick_render(o.render, o.interp, device)
         val_split = "none" if o.val_shards else opts.val_split
@@ -70,7 +70,8 @@ class OnlineData:
             split = val_choice(self.opts.val_split, ss.split_count("val") > 0)
             if split in ("holdout", "none"):  # no holdout of another build: its val split, else its first
                 split = "val" if ss.split_count("val") else next(iter(ss.build.get("counts", {}).get("splits", {})), "val")
-            spec = StreamSpec(ss.for_split(split), Selection(split), self.recipe.size)
+            labels = target_labels(read_labels(ss.root, self.opts.target), self.opts.target)
+            spec = StreamSpec(ss.for_split(split), Selection(split), self.recipe.size, labels=labels)
             return make_loader(spec, self.opts.batch, self.opts.workers)
         if self._val is None:
             frames = self.val_frames
@@ -156,8 +157,9 @@ class OnlineTrainer(Trainer):
         if self.rank != 0 or self.opts.quiet:
             return
         p, cfg = self.plan, self.model.cfg
-        print(f"fit --online: {cfg.width}x{cfg.height} px, train {p.train}, val {p.val or 'none'}, steps {step}→"
-              f"{steps}, batch {self.opts.batch}×{self.world}, {self.device}, autocast {self.dtype or 'off'}, "
+        print(f"fit --online: {cfg.width}x{cfg.height} px, {checkpoint.check_target(self.opts.target)}, train "
+              f"{p.train}, val {p.val or 'none'}, steps {step}→{steps}, batch {self.opts.batch}×{self.world}, "
+              f"{self.device}, autocast {self.dtype or 'off'}, "
               f"{torch.get_num_threads()} threads, {self.opts.workers} loader workers", file=sys.stderr)
 
     def summary(self, step: int, loss: float | None, val: dict) -> dict:

@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 
 $(TRAIN_STAMP): $(STAMP)
 	$(PY) -m pip install -q '$(TORCH)'
-	$(PY) -m pip install -q -e '.[test,train,plot,dask,ros,video]'
+	$(PY) -m pip install -q -e '.[test,train,plot,dask,ros,video,fpng]'
 	touch $(TRAIN_STAMP)
 
 # Synthetic street frames of a quarter-size KITTI camera 02, split by folder, then ~2,000 labelled samples.

@@ -129,7 +129,7 @@ LABEL_COLUMNS = [
     *[(name, "double") for name in ("crop_x0", "crop_y0", "crop_x1", "crop_y1")],
     *[(name, "double") for name in ("bend_px", "bend_pct", "shift_x_px", "shift_y_px", "scale")],
 ]
-BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "images_sha256", "channels", "max_fov", "samples", "size", "format", "shard_size", "seed",
+BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "images_sha256", "channels", "max_fov", "samples", "size", "format", "encoder", "shard_size", "seed",
                    "appd_max", "zero_fraction", "interp", "ranges", "command", "counts", "shards", "sampler",
                    "timings", "libraries"}
 

@@ -21,6 +21,7 @@ from appdgen.cli.base import (
 )
 from appdgen.util.distribute import BACKENDS
 from appdgen.errors import AppdgenError
+from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS
 from appdgen.dataset.layout import BUILD_JSON, FORMATS
 from appdgen.sources.recordings import CHANNELS
 from appdgen.synth.recording import KINDS as RECORDING_KINDS
@@ -39,6 +40,10 @@ VERIFY_LINES = 20  # problems printed; the rest are counted
 @size_option
 @click.option("--format", "image_format", default="png", type=click.Choice(list(FORMATS)), show_default=True,
               help="Image encoding in the shards (png: compression level 1; npy: uint8 HxWx3 BGR, HxW grey).")
+@click.option("--encoder", default=DEFAULT_ENCODER, type=click.Choice(list(ENCODERS)), show_default=True,
+              help="PNG encoder: opencv (libpng level 1, grey and colour) or fpng (several times faster, files a "
+                   "little larger, colour only; pip install 'appdgen[fpng]'). Same bytes on any machine for each; "
+                   f"recorded in {BUILD_JSON}. See docs/performance.md.")
 @click.option("--shard-size", type=int, default=None,
               help="Samples per shard [default: from --samples alone, about 64 shards of 8 to 1000 samples].")
 @click.option("--jobs", type=int, default=None,
@@ -62,7 +67,7 @@ VERIFY_LINES = 20  # problems printed; the rest are counted
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://host:8786.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
-def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, image_format, shard_size, jobs, seed,
+def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, image_format, encoder, shard_size, jobs, seed,
           ranges, appd_max, zero_fraction, max_fov, interp, split_by, skip_bad, topic, every, min_interval, start, end,
           channels_choice, resume, overwrite, backend, scheduler, quiet):
     """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
@@ -87,7 +92,7 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
         reference=reference, camera=inputs.camera, calib_path=calib_path, images=images, samples=total,
         size=parse_size(size) or reference.size, image_format=image_format, shard_size=shard_size, seed=seed,
         **SamplingOptions.parse(reference, ranges, appd_max, zero_fraction, max_fov, interp).build_fields(reference),
-        channels=resolve_channels(channels_choice, inputs.mono), recordings=inputs.recordings,
+        channels=resolve_channels(channels_choice, inputs.mono), recordings=inputs.recordings, encoder=encoder,
     )
     summary = run_build(config, Path(out_dir), workers, backend, scheduler, resume, overwrite,
                         progress=not quiet, command=["appdgen", *sys.argv[1:]], skipped=skipped)
@@ -176,6 +181,8 @@ def verify_command(out_dir):
 
     report = verify(Path(out_dir))
     checked = f"{report.samples} samples in {report.shard_count} shards"
+    for note in report.notes:
+        click.echo(f"note: {note}", err=True)
     if report.ok:
         click.echo(f"verified {checked}: OK")
         return

@@ -33,6 +33,7 @@ from appdgen.geometry.crop import Crop, check_max_fov, check_output_size, valid_
 from appdgen.util.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.sources.decode import as_channels, read_image
+from appdgen.dataset.encoders import DEFAULT_ENCODER, get_encoder
 from appdgen.dataset.images import encode_image
 from appdgen.dataset.layout import (FORMATS, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES, ShardStats,
                                     BEND_COLUMNS, CROP_COLUMNS, bend_columns, crop_columns, fragment_name,
@@ -94,6 +95,7 @@ class BuildConfig:
     max_fov: float | None = None  # degrees: bounds the horizontal field of view of every crop
     channels: int = 3  # of the samples: 1 grey, 3 BGR
     recordings: tuple[tuple[str, str], ...] = ()  # (source, sha256) of the recordings the frames come from
+    encoder: str = DEFAULT_ENCODER  # of PNG samples: a name in encoders.ENCODERS
     #: plan(), when already known: a config renamed after a plan.json has the same content, so the same plan.
     known_plan: dict | None = field(default=None, compare=False, repr=False)
 
@@ -122,6 +124,10 @@ class BuildConfig:
         check_max_fov(self.max_fov)
         if self.channels not in (1, 3):
             raise AppdgenError(f"--channels {self.channels}: expected 1 or 3")
+        if self.image_format == "png":
+            get_encoder(self.encoder, self.channels)
+        elif self.encoder != DEFAULT_ENCODER:
+            raise AppdgenError(f"--encoder {self.encoder}: encodes --format png only, not {self.image_format}")
         self._check_reference()
 
     def _check_reference(self) -> None:
@@ -177,7 +183,7 @@ class BuildConfig:
             "calibration": {"camera": self.camera, "sha256": file_hash(self.calib_path), **self.reference.to_dict()},
             "images_sha256": content_hash([_image_line(i) for i in self.images]), **recordings,
             "channels": self.channels,
-            "samples": self.samples, "size": list(self.size), "format": self.image_format,
+            "samples": self.samples, "size": list(self.size), "format": self.image_format, "encoder": self.encoder,
             "shard_size": self.shard_size, "seed": self.seed, "appd_max": self.appd_max,
             "zero_fraction": self.zero_fraction, "interp": self.interp, "max_fov": self.max_fov,
             "ranges": {name: r.describe() for name, r in self.ranges.items()},
@@ -211,6 +217,7 @@ def _image_line(image: RawImage) -> str:
 def plan_content(record: dict) -> dict:
     """The plan inside a recorded plan.json: without the names, which may differ for the same content."""
     content = {k: v for k, v in record.items() if k not in ("images", "recordings")}
+    content.setdefault("encoder", DEFAULT_ENCODER)  # plans from before --encoder wrote OpenCV's PNG
     calibration = record.get("calibration")
     if isinstance(calibration, dict):
         content["calibration"] = {k: v for k, v in calibration.items() if k != "path"}
@@ -248,7 +255,7 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
             lap("decode")
             image = remap_image(raw, draw.rect, config.interp)
             lap("remap")
-            data = encode_image(image, config.ext)
+            data = encode_image(image, config.ext, config.encoder)
             lap("encode")
             row = _label_row(config, shard, index, raw_image, draw.is_reference, draw.rect, draw.appd_px, bend)
             tar.add_sample(row, config.ext, data)
@@ -359,6 +366,10 @@ def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -
                 raise AppdgenError(f"--out {out}: the build there is already complete (use --overwrite to redo it)")
             raise AppdgenError(f"--out {out}: not an interrupted appdgen build (no {PARTS_DIR}/{PLAN})")
         record = json.loads(plan_path.read_text())
+        recorded = plan_content(record)["encoder"]
+        if recorded != config.encoder:
+            raise AppdgenError(f"{plan_path}: the interrupted build writes --encoder {recorded}, not "
+                               f"{config.encoder}; resume it with --encoder {recorded}, or use --overwrite")
         if plan_content(record) != config.plan():
             raise AppdgenError(f"--out {out}: the interrupted build used other inputs or options (or a calibration "
                                f"file or image set that changed since); rerun it with the same ones, or use "
@@ -495,14 +506,16 @@ def _summary(config: BuildConfig, shard_stats: list[ShardStats], built: list[int
                     "mb_written": sum(s.bytes for s in made) / 1e6,
                     # Worker seconds per stage over this run's shards (all workers together).
                     "stage_seconds": {k: sum(s.stage_seconds[k] for s in made) for k in STAGES}},
-        "libraries": _versions(),
+        "libraries": _versions(config),
     }
 
 
-def _versions() -> dict:
-    """Versions of Python and the libraries that shape the bytes."""
+def _versions(config: BuildConfig) -> dict:
+    """Versions of Python and the libraries that shape the bytes (the PNG encoder's own package among them)."""
     import joblib
     import pyarrow
 
+    encoder = get_encoder(config.encoder, config.channels)
+    package = {encoder.package: encoder.version()} if encoder.package and config.image_format == "png" else {}
     return {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
-            "pyarrow": pyarrow.__version__, "joblib": joblib.__version__}
+            "pyarrow": pyarrow.__version__, "joblib": joblib.__version__, **package}

@@ -8,21 +8,23 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS
 from appdgen.dataset.layout import FORMATS
 from appdgen.util.atomic import write_file
 from appdgen.errors import AppdgenError
 
 
-def encode_image(image: np.ndarray, ext: str) -> bytes:
-    """Encoded bytes for '.png' (compression level 1), '.jpg' (quality 95) or '.npy'."""
+def encode_image(image: np.ndarray, ext: str, encoder: str = DEFAULT_ENCODER) -> bytes:
+    """Encoded bytes for '.png' (through the PNG `encoder`, encoders.ENCODERS), '.jpg' (quality 95) or '.npy'."""
     if ext == FORMATS["npy"]:
         buffer = io.BytesIO()
         np.save(buffer, image, allow_pickle=False)
         return buffer.getvalue()
-    params = {FORMATS["png"]: [cv2.IMWRITE_PNG_COMPRESSION, 1], FORMATS["jpg"]: [cv2.IMWRITE_JPEG_QUALITY, 95]}.get(ext)
-    if params is None:
+    if ext == FORMATS["png"]:
+        return ENCODERS[encoder].encode(image)
+    if ext != FORMATS["jpg"]:
         raise AppdgenError(f"unsupported image format {ext!r}; expected .png, .jpg or .npy")
-    ok, data = cv2.imencode(ext, image, params)
+    ok, data = cv2.imencode(ext, image, [cv2.IMWRITE_JPEG_QUALITY, 95])
     if not ok:
         raise AppdgenError(f"could not encode image as {ext}")
     return data.tobytes()

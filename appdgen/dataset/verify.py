@@ -14,9 +14,12 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import BinaryIO
 
+import cv2
+import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS
 from appdgen.dataset.layout import (BUILD_JSON, HASH_COLUMN, INDEX, RECORD_EXT, SHARD_GLOB, member_names,
                                     member_record, record_json, sample_key, shard_name)
 from appdgen.dataset.reader import check_finished, counts, image_ext, read_index, read_info, shard_path
@@ -38,6 +41,7 @@ class Report:
     shard_count: int = 0
     problems: list[str] = field(default_factory=list)
     total: int = 0  # problems found; only the first KEPT_PROBLEMS are kept as text
+    notes: list[str] = field(default_factory=list)  # what could not be checked here, and why (not problems)
 
     def add(self, where: str, problem: str) -> None:
         """Record one problem at 'file' or 'file: member'."""
@@ -71,6 +75,7 @@ def verify(out: Path) -> Report:
     report.shard_count = len(shards)
     _verify_index(table, info, report)
     _verify_info(out, table, info, report)
+    encoder = _recorded_encoder(info, ext, report)
     for name in shards:
         try:
             path = shard_path(out, name)
@@ -79,6 +84,8 @@ def verify(out: Path) -> Report:
             continue
         rows = table.filter(pc.equal(table["shard"], name)).sort_by("sample_index").to_pylist()
         _verify_shard(path, rows, ext, report)
+        if encoder is not None and rows:
+            _verify_encoding(path, rows[0], ext, encoder, report)
     for path in sorted(out.glob(SHARD_GLOB)):
         if path.name not in shards:
             report.add(path.name, f"shard file not named in {INDEX}")
@@ -122,6 +129,39 @@ def _verify_info(out: Path, table: pa.Table, info: dict, report: Report) -> None
             report.add(BUILD_JSON, f"{name}: {stats.get('samples')} samples, {INDEX} has {shard_rows[name]}")
         if path.is_file() and stats.get("bytes") != path.stat().st_size:
             report.add(BUILD_JSON, f"{name}: {stats.get('bytes')} bytes, the file has {path.stat().st_size}")
+
+
+def _recorded_encoder(info: dict, ext: str, report: Report) -> str | None:
+    """The PNG encoder build.json records (builds before --encoder: opencv), when it can be re-run here; else None,
+    with a problem (an unknown name) or a note (its package is not installed)."""
+    if ext != ".png":
+        return None
+    name = info.get("encoder", DEFAULT_ENCODER)
+    if name not in ENCODERS:
+        report.add(BUILD_JSON, f"encoder {name!r} is not one of {', '.join(ENCODERS)}")
+        return None
+    if not ENCODERS[name].available():
+        report.notes.append(f"encoder {name} is not installed here ({ENCODERS[name].package}): the images' "
+                            f"encoding is unchecked (their sha256 is)")
+        return None
+    return name
+
+
+def _verify_encoding(path: Path, row: dict, ext: str, encoder: str, report: Report) -> None:
+    """A shard's first image decodes as PNG and encodes back to the same bytes with the recorded encoder (so the
+    bytes are that encoder's, and a rebuild anywhere gives them again)."""
+    name = member_names(row["key"], ext)[1]
+    try:
+        with tarfile.open(path, mode="r:") as tar:
+            data = tar.extractfile(name).read()
+    except (OSError, tarfile.TarError, KeyError, AttributeError):
+        return  # the shard scan has reported it
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        report.add(f"{path.name}: {name}", "not a readable PNG")
+    elif ENCODERS[encoder].encode(image) != data:
+        report.add(f"{path.name}: {name}", f"not the bytes --encoder {encoder} writes for its pixels ({BUILD_JSON} "
+                                           f"records {encoder})")
 
 
 def _verify_shard(path: Path, rows: list[dict], ext: str, report: Report) -> None:

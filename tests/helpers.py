@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import tarfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,6 +56,26 @@ def raw_image(size: tuple[int, int], seed: int) -> np.ndarray:
     """Blurred noise, so rectified samples differ visibly between calibrations (8-bit BGR)."""
     noise = np.random.default_rng(seed).integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)
     return cv2.GaussianBlur(noise, (0, 0), 1.5)
+
+
+def compressed_bag(path: Path, images: list[np.ndarray], start_ns: int, compressed: str,
+                   damage: dict[int, Callable[[bytes], bytes]]) -> Path:
+    """A ROS 1 bag of CompressedImage frames on /cam0/image_raw at start_ns + i, frame i's data passed through
+    damage[i] where given (rosbags needed)."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from appdgen.synth.recording import image_message
+
+    store, msgtype = get_typestore(Stores.ROS2_HUMBLE), "sensor_msgs/msg/CompressedImage"
+    with Writer(path) as writer:
+        connection = writer.add_connection("/cam0/image_raw", msgtype, typestore=store)
+        for i, image in enumerate(images):
+            message = image_message(store, image, start_ns + i, compressed=compressed)
+            if i in damage:
+                message.data = np.frombuffer(damage[i](bytes(message.data)), np.uint8).copy()
+            writer.write(connection, start_ns + i, store.serialize_ros1(message, msgtype))
+    return path
 
 
 def write_png(path: Path, image: np.ndarray) -> Path:

@@ -17,8 +17,8 @@ pytest.importorskip("rosbags")
 pytest.importorskip("av")
 
 from appdgen.synth.recording import START_NS, FRAME_PERIOD_NS, write_bag, write_video
-from helpers import (assert_one_line_error, assert_same_build, kill_group, kitti_text, raw_image, run_cli,
-                     run_with_full_disk, shard_members, spawn_cli, write_png)
+from helpers import (assert_one_line_error, assert_same_build, compressed_bag, kill_group, kitti_text, raw_image,
+                     run_cli, run_with_full_disk, shard_members, spawn_cli, write_png)
 
 FRAMES = 6
 
@@ -383,20 +383,12 @@ def test_the_calibrations_topic_finds_its_compressed_twin(small_camera, tmp_path
 
 def test_skip_bad_decodes_compressed_frames_and_drops_the_undecodable(inputs: Path, small_camera,
                                                                      tmp_path: Path) -> None:
-    from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores, get_typestore
+    def flip(data: bytes) -> bytes:
+        """Header and IEND intact, a byte of the compressed pixels flipped: libpng refuses it."""
+        return data[:len(data) // 2] + bytes([data[len(data) // 2] ^ 0xFF]) + data[len(data) // 2 + 1:]
 
-    from appdgen.synth.recording import image_message
-
-    store, msgtype = get_typestore(Stores.ROS2_HUMBLE), "sensor_msgs/msg/CompressedImage"
-    bag = tmp_path / "garbled.bag"
-    with Writer(bag) as writer:
-        connection = writer.add_connection("/cam0/image_raw", msgtype, typestore=store)
-        for i in range(3):
-            message = image_message(store, raw_image(small_camera.size, i), START_NS + i, compressed="png")
-            if i == 1:  # header and IEND intact, a byte of the compressed pixels flipped: libpng refuses it
-                message.data[len(message.data) // 2] ^= 0xFF
-            writer.write(connection, START_NS + i, store.serialize_ros1(message, msgtype))
+    bag = compressed_bag(tmp_path / "garbled.bag", [raw_image(small_camera.size, i) for i in range(3)], START_NS,
+                         "png", {1: flip})
     out = tmp_path / "out"
     result = run_cli(build_args(inputs, bag, out, "--skip-bad"))
     assert result.exit_code == 0 and "1 images skipped" in result.output, result.output

@@ -205,7 +205,7 @@ def summary_line(result: dict) -> str:
 @click.option("--csv", "as_csv", is_flag=True, help="CSV output.")
 @click.option("--json", "as_json", is_flag=True, help="JSON output (printed at the end; text and CSV stream).")
 @recording_options
-@click.option("--skip-bad", is_flag=True, help="Skip undecodable frames of a recording (counted at the end).")
+@click.option("--skip-bad", is_flag=True, help="Skip undecodable images or frames of a recording, e.g. a corrupt JPEG body (counted at the end).")
 @DEVICE
 def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str | None, max_fov: float | None,
             threshold: float, window: int, batch: int, resize: bool, as_csv: bool, as_json: bool, topic: str | None,

@@ -13,7 +13,8 @@ import cv2
 import numpy as np
 import torch
 
-from appdgen.sources.decode import as_channels
+from appdgen.errors import AppdgenError
+from appdgen.sources.decode import as_channels, decode_bytes
 from train import checkpoint, runtime
 from appdgen.dataset.layout import FORMATS
 from appdgen.sources.files import IMAGE_SUFFIXES
@@ -74,7 +75,15 @@ def sequence(inputs: list[str], frames: Frames, calib: str | None, camera: str |
 
     if not any(is_recording(Path(i)) for i in inputs):
         for path in list_images(inputs):
-            yield str(path), None, partial(read_image, path)
+            if not frames.skip_bad:
+                yield str(path), None, partial(read_image, path)
+                continue
+            try:
+                image = read_image(path)
+            except TrainError as exc:  # a corrupt JPEG body, an unreadable file: counted, not fatal
+                frames.skipped.append(str(exc))
+                continue
+            yield str(path), None, partial(np.asarray, image)
         return
     if len(inputs) != 1:
         raise TrainError(f"predict reads one recording at a time, got {', '.join(inputs)}")
@@ -85,7 +94,6 @@ def recording_items(path: Path, frames: Frames, calib: str | None, camera: str |
     """The chosen frames of a bag or video as items, in one pass (memory flat over hour-long recordings)."""
     from appdgen.calib.formats import calibration_topic
     from appdgen.sources.recordings import FrameChoice, choose_topic, stream
-    from appdgen.errors import AppdgenError
 
     if not path.exists():
         raise TrainError(f"{path}: no such recording")
@@ -104,11 +112,15 @@ def recording_items(path: Path, frames: Frames, calib: str | None, camera: str |
 
 
 def read_image(path: Path) -> np.ndarray:
-    """H×W×3 uint8 in OpenCV's BGR order (.npy taken as stored, like the shards)."""
+    """H×W×3 uint8 in OpenCV's BGR order (.npy taken as stored, like the shards); a corrupt JPEG body is refused
+    (sources.decode.decode_bytes), not read as grey rows."""
     if path.suffix.lower() == FORMATS["npy"]:
         img = np.load(path, allow_pickle=False)
     else:
-        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        try:
+            img = decode_bytes(path.read_bytes(), str(path), 3)
+        except (AppdgenError, OSError) as exc:
+            raise TrainError(str(exc) if isinstance(exc, AppdgenError) else f"{path}: {exc.strerror or exc}") from None
     if img is None or img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
         raise TrainError(f"{path}: not a readable 3-channel 8-bit image")
     return img

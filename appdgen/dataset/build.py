@@ -230,7 +230,7 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
     config, out_dir, shard = job
     cv2.setNumThreads(1)  # the parent decides parallelism
     out = Path(out_dir)
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     sampler = config.sampler()
     rows, evaluations, spent = [], 0, dict.fromkeys(STAGES, 0.0)
     last = time.perf_counter()
@@ -267,7 +267,8 @@ def build_shard(job: tuple[BuildConfig, str, int]) -> tuple[ShardStats, list[dic
     stats = ShardStats(shard=shard, file=shard_name(shard), samples=len(rows), bytes=tar.size,
                        splits=dict(sorted(Counter(r["split"] for r in rows).items())),
                        references=sum(r["is_reference"] for r in rows), evaluations=evaluations,
-                       stage_seconds=spent, seconds=time.perf_counter() - start)
+                       stage_seconds=spent, seconds=time.perf_counter() - start,
+                       cpu_seconds=time.process_time() - cpu)
     return stats, rows
 
 
@@ -505,7 +506,9 @@ def _summary(config: BuildConfig, shard_stats: list[ShardStats], built: list[int
                     "samples_per_second": sum(s.samples for s in made) / seconds if seconds > 0 else None,
                     "mb_written": sum(s.bytes for s in made) / 1e6,
                     # Worker seconds per stage over this run's shards (all workers together).
-                    "stage_seconds": {k: sum(s.stage_seconds[k] for s in made) for k in STAGES}},
+                    "stage_seconds": {k: sum(s.stage_seconds[k] for s in made) for k in STAGES},
+                    # … and their CPU seconds (below stage_seconds' sum where a worker waited: disk, a busy core).
+                    "cpu_seconds": sum(s.cpu_seconds for s in made)},
         "libraries": _versions(config),
     }
 

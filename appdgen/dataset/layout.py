@@ -161,6 +161,7 @@ class ShardStats:
     evaluations: int  # APPD evaluations of the sampler's searches
     stage_seconds: dict[str, float]  # per STAGES name
     seconds: float
+    cpu_seconds: float = 0.0  # the worker's CPU time over the shard (process_time): wall minus waiting
 
     def to_json(self) -> bytes:
         """JSON bytes (stable key order)."""

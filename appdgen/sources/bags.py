@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from appdgen.sources.frames import Frame, Index
-from appdgen.sources.decode import to_8bit
+from appdgen.sources.decode import decode_bytes, to_8bit
 from appdgen.sources.headers import ImageHeader, header_problem, stream_header, truncation
 from appdgen.errors import AppdgenError
 
@@ -133,10 +133,12 @@ def _undecodable(message, where: str) -> str | None:
 def decode_message(message, msgtype: str, where: str) -> np.ndarray:
     """An Image or CompressedImage message as an 8-bit image: grey H×W for mono, BGR H×W×3 otherwise."""
     if msgtype == COMPRESSED:
-        image = cv2.imdecode(np.frombuffer(bytes(message.data), np.uint8), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise AppdgenError(f"{where}: undecodable {message.format or 'compressed'} image")
-        image = to_8bit(image)
+        try:
+            image = to_8bit(decode_bytes(bytes(message.data), where))
+        except AppdgenError as exc:
+            problem = str(exc).removeprefix(f"{where}: ")
+            detail = "" if problem == "not a readable image" else f": {problem}"
+            raise AppdgenError(f"{where}: undecodable {message.format or 'compressed'} image{detail}") from None
         return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR) if image.ndim == 3 and image.shape[2] == 4 else image
     dtype, channels, conversion = ENCODINGS[message.encoding]
     itemsize = np.dtype(dtype).itemsize

@@ -6,6 +6,7 @@ import re
 from pathlib import Path
 
 from appdgen.errors import AppdgenError
+from appdgen.sources.decode import decode_bytes, is_jpeg
 from appdgen.sources.frames import RawImage
 from appdgen.sources.headers import header_problem, image_header
 
@@ -107,12 +108,13 @@ def kitti_camera(images: list[RawImage]) -> str | None:
 
 def check_images(images: list[RawImage], size: tuple[int, int], skip_bad: bool) -> tuple[list[RawImage], list[dict]]:
     """Images of the calibration's raw size, complete, grey or colour; the others refused (first named) or, with
-    skip_bad, dropped and returned as {"path", "problem"} (cheap: headers and file ends only)."""
+    skip_bad, dropped and returned as {"path", "problem"} (headers and file ends only; with skip_bad also each
+    JPEG's body, decoded strictly once here, so that no worker meets a corrupt one it would have to stop at)."""
     kept, dropped = [], []
     for image in images:
         try:
             header = image_header(image.path)
-            problem = header_problem(header, size)
+            problem = header_problem(header, size) or (_jpeg_body_problem(image.path) if skip_bad else None)
         except AppdgenError as exc:
             problem = str(exc).split(": ", 1)[-1]
         if problem is None:
@@ -125,6 +127,21 @@ def check_images(images: list[RawImage], size: tuple[int, int], skip_bad: bool) 
         first = f"{dropped[0]['path']}: {dropped[0]['problem']}" if dropped else "none given"
         raise AppdgenError(f"no usable image left: {first}")
     return kept, dropped
+
+
+def _jpeg_body_problem(path: Path) -> str | None:
+    """Why a JPEG file's body does not decode strictly (corrupt data), or None (also for other formats)."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        return f"cannot read image ({exc.strerror or exc})"
+    if not is_jpeg(data):
+        return None
+    try:
+        decode_bytes(data, str(path))
+    except AppdgenError as exc:
+        return str(exc).removeprefix(f"{path}: ")
+    return None
 
 
 def all_grey(images: list[RawImage]) -> bool:

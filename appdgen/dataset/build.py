@@ -517,8 +517,10 @@ def _versions(config: BuildConfig) -> dict:
     """Versions of Python and the libraries that shape the bytes (the PNG encoder's own package among them)."""
     import joblib
     import pyarrow
+    import simplejpeg  # decodes JPEG inputs (dataset/decoders.py)
 
     encoder = get_encoder(config.encoder, config.channels)
     package = {encoder.package: encoder.version()} if encoder.package and config.image_format == "png" else {}
     return {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
-            "pyarrow": pyarrow.__version__, "joblib": joblib.__version__, **package}
+            "pyarrow": pyarrow.__version__, "joblib": joblib.__version__, "simplejpeg": simplejpeg.__version__,
+            **package}

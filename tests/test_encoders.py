@@ -123,3 +123,18 @@ def test_fpng_refuses_grey_and_non_png_builds(setup: Setup, tmp_path: Path) -> N
     assert_one_line_error(result, "--encoder fpng", "--channels 1")
     result = run_cli(setup.args(tmp_path / "jpg", "--encoder", "fpng", "--format", "jpg"))
     assert_one_line_error(result, "--encoder fpng", "--format png only")
+
+
+def test_verify_leaves_the_encoding_unchecked_under_another_library_version(reference_build: Path,
+                                                                           tmp_path: Path) -> None:
+    import shutil
+
+    out = tmp_path / "copy"
+    shutil.copytree(reference_build, out)
+    info = json.loads((out / "build.json").read_text())
+    info["libraries"]["opencv"] = "3.4.0"
+    (out / "build.json").write_text(json.dumps(info))
+    report = verify(out)
+    assert report.ok and report.notes == [f"build.json records opencv 3.4.0, this machine has {cv2.__version__}: "
+                                          f"the images' encoding is unchecked (their sha256 is)"]
+    assert verify(reference_build).ok and verify(reference_build).notes == []

@@ -140,9 +140,16 @@ def _recorded_encoder(info: dict, ext: str, report: Report) -> str | None:
     if name not in ENCODERS:
         report.add(BUILD_JSON, f"encoder {name!r} is not one of {', '.join(ENCODERS)}")
         return None
-    if not ENCODERS[name].available():
-        report.notes.append(f"encoder {name} is not installed here ({ENCODERS[name].package}): the images' "
-                            f"encoding is unchecked (their sha256 is)")
+    encoder = ENCODERS[name]
+    if not encoder.available():
+        report.notes.append(f"encoder {name} is not installed here ({encoder.package}): the images' encoding is "
+                            f"unchecked (their sha256 is)")
+        return None
+    library = encoder.package or "opencv"
+    recorded = (info.get("libraries") or {}).get(library)
+    if recorded != encoder.version():  # another version may write other bytes for the same pixels
+        report.notes.append(f"{BUILD_JSON} records {library} {recorded}, this machine has {encoder.version()}: the "
+                            f"images' encoding is unchecked (their sha256 is)")
         return None
     return name
 

@@ -18,11 +18,10 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from appdgen.version import __version__
 from appdgen.geometry.appd import px_to_pct
@@ -48,6 +47,9 @@ from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Sampler
 from appdgen.dataset.shards import BuildWriter, read_stats
 from appdgen.sources.frames import Frame, RawImage
 from appdgen.sources.headers import check_complete
+
+if TYPE_CHECKING:  # workers never import pyarrow (~80 ms of each one's start): the parent writes the fragments
+    import pyarrow as pa
 
 MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
 MIN_SHARD_SIZE = 8  # … and about the least of small ones
@@ -429,6 +431,8 @@ def _remove_outputs(out: Path) -> None:
 def _add_bend_columns(config: BuildConfig, writer: BuildWriter, done: list[int]) -> None:
     """Give the fragments of done shards that a build from before BEND_COLUMNS wrote their bend columns, from each
     row's own parameters and crop (what a worker computes from the draw), so that the index has one schema."""
+    import pyarrow.parquet as pq  # here: the parent resumes, workers never import pyarrow
+
     reference_crop = config.sampler().reference_rect.crop
     for shard in done:
         path = writer.parts / fragment_name(shard)

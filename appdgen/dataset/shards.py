@@ -17,13 +17,23 @@ import secrets
 import shutil
 from collections.abc import Callable
 from pathlib import Path
-
-import pyarrow as pa
-import pyarrow.parquet as pq
+from typing import TYPE_CHECKING
 
 from appdgen.util.atomic import atomic_stream, atomic_write
 from appdgen.dataset.layout import (BUILD_JSON, HASH_COLUMN, INDEX, PARTS_DIR, STATS_KEY, ShardStats, fragment_name,
                                     label_schema, member_names, record_json, shard_name)
+
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+
+def _arrow():
+    """pyarrow and pyarrow.parquet, imported where a table is written or read (the parent), not in the workers that
+    only stream tars (~80 ms of each worker's start)."""
+    import pyarrow
+    import pyarrow.parquet
+
+    return pyarrow, pyarrow.parquet
 
 
 class TarShard:
@@ -67,6 +77,7 @@ def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: S
                    sources: bool = False) -> pa.Table:
     """One shard's label rows (columns of label_schema(params, sources)) and its stats as a Parquet file,
     atomically; returns the table written (the index can take it from memory)."""
+    pa, _ = _arrow()
     schema = label_schema(params, sources)
     columns = [pa.array([r[n] for r in rows], f.type) for n, f in zip(schema.names, schema)]
     table = pa.Table.from_arrays(columns, schema=schema.with_metadata({STATS_KEY: stats.to_json()}))
@@ -76,18 +87,20 @@ def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: S
 
 def read_stats(fragment: Path | pa.Table) -> ShardStats:
     """The ShardStats stored with a shard's fragment: its file, or the table write_fragment returned."""
+    pa, pq = _arrow()
     schema = fragment.schema if isinstance(fragment, pa.Table) else pq.read_schema(fragment)
     return ShardStats.from_json(schema.metadata[STATS_KEY])
 
 
 def read_fragment(path: Path, schema: pa.Schema) -> pa.Table:
     """One shard's label rows, read with their schema."""
-    return pq.read_table(path, schema=schema)
+    return _arrow()[1].read_table(path, schema=schema)
 
 
 def write_index(path: Path, fragments: list[Path | pa.Table], params: Sequence[str], sources: bool = False) -> int:
     """Concatenate shard fragments (files, or tables write_fragment returned) in order into labels.parquet,
     atomically; returns the row count."""
+    pa, _ = _arrow()
     schema = label_schema(params, sources)
     tables = [f.cast(schema) if isinstance(f, pa.Table) else read_fragment(f, schema) for f in fragments]
     table = pa.concat_tables(tables) if tables else schema.empty_table()
@@ -97,6 +110,7 @@ def write_index(path: Path, fragments: list[Path | pa.Table], params: Sequence[s
 
 def _write_table(path: Path, table: pa.Table) -> None:
     """A Parquet file (zstd, no timestamps: same rows, same bytes), written atomically."""
+    pa, pq = _arrow()
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink, compression="zstd")
     atomic_write(path, sink.getvalue().to_pybytes())

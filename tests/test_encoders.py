@@ -106,7 +106,7 @@ def test_build_records_the_encoder_verify_checks_it_and_resume_keeps_it(setup: S
     # The shards' images are fpng's bytes: recorded as opencv, verify finds they are not OpenCV's.
     (out / "build.json").write_text(json.dumps({**info, "encoder": "opencv"}))
     problems = verify(out).problems
-    assert len(problems) == setup.shards and all("not the bytes --encoder opencv writes" in p for p in problems)
+    assert len(problems) == setup.shard_count and all("not the bytes --encoder opencv writes" in p for p in problems)
 
 
 def test_resume_with_another_encoder_is_refused_naming_the_plan(setup: Setup, interrupted_build: Path) -> None:

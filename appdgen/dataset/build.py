@@ -521,7 +521,7 @@ def _versions(config: BuildConfig) -> dict:
     """Versions of Python and the libraries that shape the bytes (the PNG encoder's own package among them)."""
     import joblib
     import pyarrow
-    import simplejpeg  # decodes JPEG inputs (dataset/decoders.py)
+    import simplejpeg  # decodes JPEG inputs (sources/decode.py)
 
     encoder = get_encoder(config.encoder, config.channels)
     package = {encoder.package: encoder.version()} if encoder.package and config.image_format == "png" else {}

@@ -323,6 +323,23 @@ def test_predict_a_folder_as_csv_and_json(trained, shards, tmp_path, capsys):
     assert out["summary"]["verdict"] == "recalibrate" and out["summary"]["images"] == 10
 
 
+def test_predict_names_a_corrupt_jpeg_or_skips_and_counts_it(trained, shards, tmp_path, capsys):
+    paths = extract_pngs(shards, tmp_path / "seq", n=4)
+    data = bytearray(cv2.imencode(".jpg", cv2.imread(str(paths[1])), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes())
+    middle = len(data) // 2  # 200 body bytes overwritten: OpenCV decodes it (grey rows), libjpeg only warns
+    data[middle:middle + 200] = np.random.default_rng(0).integers(0, 256, 200, dtype=np.uint8).tobytes()
+    bad = paths[1].with_suffix(".jpg")
+    bad.write_bytes(bytes(data))
+    paths[1].unlink()
+    with pytest.raises(SystemExit):
+        run_cli(["predict", "--ckpt", trained / "last.pt", tmp_path / "seq"], capsys)
+    err = capsys.readouterr().err
+    assert str(bad) in err and "corrupt JPEG" in err
+    out = json.loads(run_cli(["predict", "--ckpt", trained / "last.pt", tmp_path / "seq", "--json", "--skip-bad"],
+                             capsys))
+    assert out["summary"]["images"] == 3 and out["summary"]["skipped_frames"] == 1
+
+
 def test_predict_refuses_wrong_size_without_calib(trained, tmp_path, capsys):
     cv2.imwrite(str(tmp_path / "big.png"), np.zeros((150, 200, 3), np.uint8))
     with pytest.raises(SystemExit):

@@ -60,8 +60,8 @@ class OpenCVEncoder(Encoder):
 
 class FpngEncoder(Encoder):
     """fpng (PyPI `fpng`, a wrapper of R. Geldreich's fpng): several times faster than OpenCV's level 1, files a
-    little larger (docs/performance.md); colour only (fpng writes 24/32-bit PNG). Its SSE4.1 path computes only the CRC-32 and Adler-32 checksums, so
-    the bytes are the same without it (tests/test_encoders.py runs both)."""
+    little larger (docs/performance.md); colour only (fpng writes 24/32-bit PNG). Its SSE4.1 path computes only
+    the CRC-32 and Adler-32 checksums, so the bytes are the same without it (tests/test_encoders.py runs both)."""
 
     name = "fpng"
     channels = (3,)

@@ -291,6 +291,19 @@ def test_temporaries_left_by_a_kill_go_on_resume_and_overwrite(setup: Setup, ref
     assert_same_build(out, reference_build)
 
 
+def test_resuming_a_complete_build_clears_the_parts_a_kill_at_its_very_end_left(setup: Setup, reference_build: Path,
+                                                                                 tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    shutil.copytree(reference_build, out)
+    trash = out / "..parts.0123abcd.tmp"  # BuildWriter.finish renames .parts so, then removes it
+    trash.mkdir()
+    (trash / "plan.json").write_text("{}")
+    result = run_cli(setup.args(out, "--resume"))
+    assert result.exit_code != 0 and "already complete" in result.stderr
+    assert not trash.exists()
+    assert_same_build(out, reference_build)
+
+
 @pytest.mark.parametrize("flags", [[], ["--resume"]])
 def test_a_build_killed_before_its_plan_starts_afresh(setup: Setup, reference_build: Path, tmp_path: Path,
                                                       flags: list[str]) -> None:

@@ -366,6 +366,7 @@ def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -
     if existing and resume:
         if not plan_path.is_file():
             if (out / INDEX).is_file():
+                _remove_temporaries(out)  # a kill between the end's rename of .parts and its removal leaves it
                 raise AppdgenError(f"--out {out}: the build there is already complete (use --overwrite to redo it)")
             raise AppdgenError(f"--out {out}: not an interrupted appdgen build (no {PARTS_DIR}/{PLAN})")
         record = json.loads(plan_path.read_text())

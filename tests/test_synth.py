@@ -1,6 +1,8 @@
 """Procedural raw frames: determinism, sizes, and that Θ's rectification straightens them again."""
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -235,3 +237,26 @@ def test_mount_changes_the_pose_only():
     car, loose = random_street(frame_rng(7, 0), CAR), random_street(frame_rng(7, 0), LOOSE)
     assert len(car.groups) == len(loose.groups) and car.noise_seed == loose.noise_seed
     assert not np.allclose(car.camera.R, loose.camera.R)
+
+
+def test_offset_moves_the_camera_sideways_in_the_same_street():
+    still = random_street(frame_rng(7, 0), CAR)
+    moved = random_street(frame_rng(7, 0), dataclasses.replace(CAR, offset=0.3))
+    np.testing.assert_allclose(moved.camera.R, still.camera.R)
+    step = moved.camera.C - still.camera.C
+    # 0.3 m along the camera's own x axis (its first row of world→camera R), nothing else moved
+    assert np.linalg.norm(step) == pytest.approx(0.3) and still.camera.R[0] @ step == pytest.approx(0.3)
+    assert len(moved.groups) == len(still.groups) and moved.noise_seed == still.noise_seed
+    for (box_a, ops_a), (box_b, ops_b) in zip(still.groups, moved.groups):
+        np.testing.assert_array_equal(box_a, box_b)  # the same world drawn
+
+
+def test_offset_frame_is_the_same_street_seen_from_the_side():
+    calib = KITTI_2011_09_26["02"]
+    a = render_frame(calib, frame_rng(3, 0), 0.1)
+    b = render_frame(calib, frame_rng(3, 0), 0.1, dataclasses.replace(CAR, offset=0.0))
+    c = render_frame(calib, frame_rng(3, 0), 0.1, dataclasses.replace(CAR, offset=0.5))
+    np.testing.assert_array_equal(a, b)  # offset 0 is the default frame, byte for byte
+    assert np.abs(a.astype(int) - c).mean() > 1.0  # moved: the picture changes ...
+    # ... but it is the same street: same sky and light, so the colour statistics barely move
+    assert np.abs(a.reshape(-1, 3).mean(0) - c.reshape(-1, 3).mean(0)).max() < 8.0

@@ -1,6 +1,7 @@
 """CLI commands for datasets: synthesize raw frames, build shards, inspect and verify them, write image lists."""
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -115,6 +116,9 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
 @click.option("--mount", default="car", type=click.Choice(["car", "loose"]), show_default=True,
               help="Camera pose spread: car (lane keeping and suspension: yaw σ 0.01 rad, pitch ±0.008, roll "
                    "±0.005, height 1.65±0.03 m) or loose (yaw σ 0.12, pitch ±0.05, roll ±0.035, height 1.4-2.1 m).")
+@click.option("--offset", default=0.0, show_default=True, metavar="METRES",
+              help="Move every frame's camera sideways (along its x axis, + = right) after the scene is drawn: the "
+                   "same streets from a new viewpoint (same --seed), as a stereo rig's other camera sees them.")
 @click.option("--jobs", type=int, default=None,
               help="Worker processes, as build's --jobs (-1 all cores, -2 all but one, …) [default: all cores]; any "
                    "N, same bytes.")
@@ -125,7 +129,7 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
 @click.option("--mono", is_flag=True, help="Grey frames (mono8 in a bag), as a monochrome camera's.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
-def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, kind, mono, quiet):
+def synth(calib_path, camera, frames, out_dir, seed, scale, mount, offset, jobs, kind, mono, quiet):
     """Render procedural street frames as the (scaled) camera sees them, through any lens model, plus its
     calibration (calibration.yaml; calibration.json for ds/eucm, which OpenCV YAML cannot hold)."""
     from appdgen.calib.defaults import DEFAULT_CALIB_PATH
@@ -146,7 +150,7 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, jobs, kind, m
         recording_target(out, kind)  # refused before any frame is rendered
     bar = Progress(frames, unit="frames", enabled=not quiet)
     written = synthesize(calib, frames, out, seed, scale, progress=bar.advance, jobs=resolve_jobs(jobs),
-                         mount=MOUNTS[mount])
+                         mount=dataclasses.replace(MOUNTS[mount], offset=offset))
     where = frames_as(written, out, kind, mono)
     name = calibration_name(scaled)
     save(scaled, out / name)

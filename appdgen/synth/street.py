@@ -37,7 +37,8 @@ class Mount:
     """How the camera sits on the car: height (m) and the spread of its pose from frame to frame.
 
     lateral: σ of the offset from the lane centre (m); height_jitter: ± around height (m); yaw: σ of the heading
-    relative to the street, clipped at ± yaw_max; pitch, roll: ± bounds (rad). Every draw is made whatever the
+    relative to the street, clipped at ± yaw_max; pitch, roll: ± bounds (rad); offset: a sideways move of the
+    posed camera along its own x axis (m, + = right), made after every draw. Every draw is made whatever the
     values, so two mounts give the same street (buildings, light, texture) from two poses.
     """
 
@@ -48,6 +49,7 @@ class Mount:
     yaw_max: float
     pitch: float
     roll: float
+    offset: float = 0.0
 
 
 #: A camera bolted to a car driving down the street. Lane keeping holds the heading to within about a degree of
@@ -629,4 +631,10 @@ class Street:
 
 def random_street(rng: np.random.Generator, mount: Mount = CAR) -> Scene:
     """One random street scene seen from a camera posed as `mount` allows; all randomness comes from rng."""
-    return Street(rng, mount).build()
+    scene = Street(rng, mount).build()
+    if mount.offset:
+        # Moved once the street is built: its layout, textures and painter's order stay those of the unmoved
+        # camera, so the frame is the same street from a viewpoint `offset` metres to the side (a stereo pair).
+        camera = scene.camera
+        scene.camera = Camera(R=camera.R, C=camera.C + mount.offset * camera.R[0])
+    return scene

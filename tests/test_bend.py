@@ -1,12 +1,13 @@
 """The label decomposed (geometry.bend): affine part and non-affine rest of the warp between two rectifications."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.defaults import default_calibration
-from appdgen.geometry.bend import split_warp
+from appdgen.geometry.bend import grid, split_warp, warp_field
 from appdgen.geometry.crop import Crop, valid_region
 from appdgen.geometry.distortion import distort_to_pixels, undistort_pixels
 from appdgen.geometry.maps import rectify
@@ -59,6 +60,19 @@ def test_a_principal_point_change_is_mostly_affine_and_k1_mostly_not() -> None:
     assert cx.shift_x_px < -0.9 * cx.appd_grid_px  # a larger cx moves the raw position left
     k1 = split(KITTI, KITTI.replace(k1=KITTI.k1 * 1.15))
     assert k1.bend_px > 0.5 * k1.appd_grid_px
+
+
+def test_the_field_is_opencvs_map_difference_at_the_grid_points() -> None:
+    sample = KITTI.replace(k1=KITTI.k1 * 1.1, cx=KITTI.cx + 9.0)
+    r, m = rectify(KITTI, KITTI.size), rectify(sample, KITTI.size)
+    field = warp_field(KITTI, r.crop, sample, m.crop, columns=12)
+    u, v = (a.astype(np.float32).reshape(1, -1) for a in grid(KITTI, 12))
+    at = [cv2.remap(mp, u, v, cv2.INTER_LINEAR).ravel() for mp in (m.map_x, m.map_y, r.map_x, r.map_y)]
+    assert field.moved.shape == field.rest.shape == (12 * field.rows, 2) and field.rows == 4
+    np.testing.assert_allclose(field.moved, np.column_stack([at[0] - at[2], at[1] - at[3]]), atol=0.02)
+    s = split_warp(KITTI, r.crop, sample, m.crop, columns=12)
+    assert np.hypot(*field.rest.T).mean() == pytest.approx(s.bend_px, rel=1e-12)
+    assert np.hypot(*field.moved.T).mean() == pytest.approx(s.appd_grid_px, rel=1e-12)
 
 
 @pytest.mark.parametrize("size", [(348, 128), (1392, 512)])

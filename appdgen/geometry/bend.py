@@ -69,14 +69,23 @@ def _raw(calib: Calibration, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, 
     return calib.fx * xd + calib.cx, calib.fy * yd + calib.cy
 
 
-def split_warp(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop,
-               columns: int = GRID_COLUMNS) -> WarpSplit:
-    """The affine/non-affine split of the warp from the reference rectification to the sample's (raw pixels);
-    NO_WARP, exactly, for the reference rectification itself."""
+@dataclass(frozen=True)
+class WarpField:
+    """The warp's displacement on grid(reference, columns), per point (N×2, raw pixels, x then y): `moved`, how far
+    the sample's raw sample position is from the reference's (M̂m(p) − M̂*(p): APPD is its mean length); `rest`, the
+    non-affine part through J* (bend_px is its mean length). Row-major over the grid's rows × columns."""
+
+    moved: np.ndarray
+    rest: np.ndarray
+    columns: int
+    rows: int
+
+
+def _split(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop, columns: int
+           ) -> tuple[WarpField, np.ndarray, np.ndarray]:
+    """The field on the grid and the affine fit's coefficients (u and v: t, a_u, a_v in reference output pixels)."""
     if reference.size != sample.size:
         raise ValueError(f"calibrations differ in raw size: {reference.size} vs {sample.size}")
-    if sample == reference and sample_crop == reference_crop:
-        return NO_WARP
     u, v = grid(reference, columns)
     raw_u, raw_v = _raw(sample, *_normalized(sample_crop, sample, u, v))  # M̂m(p)
     x, y = undistort_pixels(raw_u, raw_v, reference)
@@ -88,13 +97,36 @@ def split_warp(reference: Calibration, reference_crop: Crop, sample: Calibration
     # J*(W(p)) = diag(fx, fy)·∂distort/∂(x, y)·K̂*⁻¹: raw pixels per reference output pixel where the ray lands.
     j11, j12, j21, j22 = distortion_jacobian(x, y, reference)
     sx, sy = reference.fx / k[0, 0], reference.fy / k[1, 1]
-    bend = np.hypot(sx * (j11 * ru + j12 * rv), sy * (j21 * ru + j22 * rv))
+    rest = np.column_stack([sx * (j11 * ru + j12 * rv), sy * (j21 * ru + j22 * rv)])
     ref_u, ref_v = _raw(reference, *_normalized(reference_crop, reference, u, v))  # M̂*(p)
+    moved = np.column_stack([raw_u - ref_u, raw_v - ref_v])
+    return WarpField(moved, rest, columns, len(u) // columns), coef_u, coef_v
+
+
+def warp_field(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop,
+               columns: int = GRID_COLUMNS) -> WarpField:
+    """The warp's displacement and its non-affine rest at each point of a columns-wide grid (raw pixels); zeros,
+    exactly, for the reference rectification itself."""
+    field = _split(reference, reference_crop, sample, sample_crop, columns)[0]
+    if sample == reference and sample_crop == reference_crop:
+        return WarpField(np.zeros_like(field.moved), np.zeros_like(field.rest), field.columns, field.rows)
+    return field
+
+
+def split_warp(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop,
+               columns: int = GRID_COLUMNS) -> WarpSplit:
+    """The affine/non-affine split of the warp from the reference rectification to the sample's (raw pixels);
+    NO_WARP, exactly, for the reference rectification itself."""
+    if reference.size != sample.size:
+        raise ValueError(f"calibrations differ in raw size: {reference.size} vs {sample.size}")
+    if sample == reference and sample_crop == reference_crop:
+        return NO_WARP
+    field, coef_u, coef_v = _split(reference, reference_crop, sample, sample_crop, columns)
     return WarpSplit(
-        bend_px=float(bend.mean()),
+        bend_px=float(np.hypot(*field.rest.T).mean()),
         **_centre_shift(reference, reference_crop, coef_u, coef_v),
         scale=float(np.sqrt(abs(coef_u[1] * coef_v[2] - coef_u[2] * coef_v[1]))),
-        appd_grid_px=float(np.hypot(raw_u - ref_u, raw_v - ref_v).mean()),
+        appd_grid_px=float(np.hypot(*field.moved.T).mean()),
     )
 
 

@@ -10,7 +10,7 @@ import torch
 from appdgen.util.atomic import atomic_stream
 from train.errors import TrainError
 from appdgen.dataset.layout import TARGETS
-from train.model import NORMALIZE, AppdNet, ModelConfig
+from train.model import NORMALIZE, ModelConfig, build
 
 FORMAT = "appdgen-train/1"
 
@@ -38,8 +38,8 @@ def fresh(opts, size: tuple[int, int], stats: tuple[list[float], list[float], np
     data) completed with the model, the target and its label column, fit's options and torch's version."""
     mean, std, mean_image = stats
     torch.manual_seed(opts.seed)
-    model = AppdNet(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), channels=channels,
-                                normalize=opts.normalize))
+    model = build(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), channels=channels,
+                              normalize=opts.normalize, arch=opts.model))
     if opts.normalize == "pixel":
         with torch.no_grad():
             model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])
@@ -88,9 +88,9 @@ def model_config(ckpt: dict) -> ModelConfig:
     return ModelConfig.from_dict(ckpt["config"]["model"])
 
 
-def build_model(ckpt: dict) -> AppdNet:
-    """The checkpoint's network with its weights, in eval mode on the CPU."""
-    model = AppdNet(model_config(ckpt))
+def build_model(ckpt: dict) -> torch.nn.Module:
+    """The checkpoint's network (any of train.model.MODELS) with its weights, in eval mode on the CPU."""
+    model = build(model_config(ckpt))
     model.load_state_dict(ckpt["model"])
     return model.eval()
 

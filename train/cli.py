@@ -11,6 +11,7 @@ import click
 from appdgen.cli.base import recording_options, stack_options
 from appdgen.dataset.layout import TARGETS
 from train.errors import TrainError
+from train.model import MODELS
 
 DEVICE = click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 
@@ -101,6 +102,9 @@ def online_from(kw: dict) -> None:
 @click.option("--target", default="appd", show_default=True, type=click.Choice(list(TARGETS)),
               help="What the network learns: appd = APPD (appd_pct, the paper's label); bend = its non-affine part "
                    "(bend_pct, what bends straight lines; from labels.parquet offline, from each draw online).")
+@click.option("--model", default="paper", show_default=True, type=click.Choice(list(MODELS)),
+              help="The network: the paper's CNN, or patch (a stride-4 patchify stem: full-resolution detail at a "
+                   "third of the paper CNN's cost at quarter size; benchmarks/detector.py compares them).")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @online_options
 def fit(**kw) -> None:

@@ -80,6 +80,14 @@ def to_input(batch: dict, device: torch.device) -> torch.Tensor:
     return x.contiguous(memory_format=torch.channels_last)
 
 
+def check_shapes(pred: torch.Tensor, target: torch.Tensor) -> None:
+    """Refuse a prediction whose shape is not the target's: an (N, 1) prediction against an (N,) target broadcasts
+    MSE over all N×N pairs, whose optimum is the batch mean (the bug the paper's authors fixed in "Fixed loss")."""
+    if pred.shape != target.shape:
+        raise TrainError(f"prediction shape {tuple(pred.shape)} differs from the target's {tuple(target.shape)}: "
+                         "the loss would broadcast over pairs of images")
+
+
 def train_step(net: torch.nn.Module, opt: torch.optim.Optimizer, batch: dict, device: torch.device,
                dtype: torch.dtype | None) -> torch.Tensor:
     """One Adam step on MSE(pred, appd_pct); returns the detached loss (no host sync)."""
@@ -87,6 +95,7 @@ def train_step(net: torch.nn.Module, opt: torch.optim.Optimizer, batch: dict, de
     y = batch["label"].to(device, non_blocking=True)
     with runtime.autocast(device, dtype):
         pred = net(x)
+    check_shapes(pred, y)
     loss = F.mse_loss(pred.float(), y)
     opt.zero_grad(set_to_none=True)
     loss.backward()

@@ -1,4 +1,5 @@
-"""The paper's CNN: 7 conv blocks, then dense 512 → 128 → 1 regressing APPD (% of diagonal)."""
+"""The paper's CNN: 7 conv blocks, then dense 512 → 128 → 1 regressing APPD (% of diagonal); `build` makes any
+of MODELS (the others live in train.nets)."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -16,6 +17,9 @@ NORMALIZE = ("channel", "pixel")
 #: ModelConfig.channels → the network's input channels: OpenCV's BGR colour, or one grey channel (a build from a
 #: mono camera: build.json's channels 1).
 INPUT_CHANNELS = {"bgr": 3, "grey": 1}
+#: ModelConfig.arch → the network: the paper's CNN, or train.nets' stride-4 patchify network (full-resolution
+#: detail at a quarter-size network's cost; `fit --model`).
+MODELS = ("paper", "patch")
 
 
 @dataclass(frozen=True)
@@ -31,6 +35,8 @@ class ModelConfig:
     std: tuple[float, ...] = (0.25, 0.25, 0.25)
     channels: str = "bgr"
     normalize: str = "channel"
+    arch: str = "paper"
+    outputs: int = 1  # 1: a scalar per image (N); more: a vector per image (N×outputs, e.g. a dense field)
 
     def to_dict(self) -> dict:
         """Plain dict (lists, numbers, str) safe for weights_only checkpoints."""
@@ -70,6 +76,18 @@ def check_size(width: int, height: int, n_blocks: int = len(PAPER_FILTERS)) -> N
             f"images are {width}x{height} px but the network's {n_blocks} 2x2 max-pools need at least "
             f"{need}x{need} px; build the shards with a larger --size"
         )
+
+
+def init_relu_net(net: nn.Module, last: nn.Module) -> None:
+    """Xavier-uniform weights (with the ReLU gain √2 where a ReLU follows, 1 for the output layer `last`), zero
+    biases."""
+    # Plain Xavier (Keras' glorot default) halves the signal's variance at every ReLU: after 16 layers the
+    # output std was 2e-4 of its input's and the net sat at the mean predictor. The ReLU gain keeps it ~1.
+    relu_gain = nn.init.calculate_gain("relu")
+    for m in net.modules():
+        if isinstance(m, (nn.Conv2d, nn.Linear)):
+            nn.init.xavier_uniform_(m.weight, gain=1.0 if m is last else relu_gain)
+            nn.init.zeros_(m.bias)
 
 
 class Normalize(nn.Module):
@@ -122,21 +140,26 @@ class AppdNet(nn.Module):
             layers += [nn.Linear(a, b), nn.ReLU(inplace=True)]
             if i == 0:
                 layers.append(nn.Dropout(cfg.dropout))
-        layers.append(nn.Linear(sizes[-1], 1))
+        layers.append(nn.Linear(sizes[-1], cfg.outputs))
         self.head = nn.Sequential(*layers)
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
-        """Xavier-uniform weights (with the ReLU gain √2 where a ReLU follows) and zero biases."""
-        # Plain Xavier (Keras' glorot default) halves the signal's variance at every ReLU: after 16 layers the
-        # output std was 2e-4 of its input's and the net sat at the mean predictor. The ReLU gain keeps it ~1.
-        relu_gain = nn.init.calculate_gain("relu")
-        last = self.head[-1]
-        for m in self.modules():
-            if isinstance(m, (nn.Conv2d, nn.Linear)):
-                nn.init.xavier_uniform_(m.weight, gain=1.0 if m is last else relu_gain)
-                nn.init.zeros_(m.bias)
+        """Xavier-uniform weights with the ReLU gain, zero biases (init_relu_net)."""
+        init_relu_net(self, self.head[-1])
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Predicted APPD per image (% of raw diagonal)."""
-        return self.head(self.features(self.normalize(x))).squeeze(1)
+        """Predicted APPD per image (% of raw diagonal): N, or N×outputs."""
+        out = self.head(self.features(self.normalize(x)))
+        return out.squeeze(1) if self.cfg.outputs == 1 else out
+
+
+def build(cfg: ModelConfig) -> nn.Module:
+    """The network cfg.arch names (MODELS), untrained."""
+    if cfg.arch not in MODELS:
+        raise TrainError(f"model must be one of {', '.join(MODELS)}, got {cfg.arch!r}")
+    if cfg.arch == "paper":
+        return AppdNet(cfg)
+    from train.nets import PatchNet  # nets builds on this module's parts
+
+    return PatchNet(cfg)

@@ -1,0 +1,93 @@
+"""`fit --model`: the networks of train.model.MODELS, and the training step's shape check (the paper's loss bug)."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from train.checkpoint import build_model, load  # noqa: E402
+from train.cli import main  # noqa: E402
+from train.errors import TrainError  # noqa: E402
+from train.loop import check_shapes, train_step  # noqa: E402
+from train.model import MODELS, AppdNet, ModelConfig, build  # noqa: E402
+from train.nets import PATCH, PatchNet  # noqa: E402
+from train.synthetic import write_shards  # noqa: E402
+
+
+class Column(torch.nn.Module):
+    """A network that returns (N, 1), as the paper's Keras model did."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.zeros(1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x.mean(dim=(1, 2, 3))[:, None] * self.w
+
+
+def test_train_step_refuses_an_n_by_1_prediction_against_an_n_target():
+    net = Column()
+    batch = {"image": torch.zeros(4, 3, 8, 8, dtype=torch.uint8), "label": torch.rand(4)}
+    opt = torch.optim.Adam(net.parameters())
+    with pytest.raises(TrainError, match=r"\(4, 1\) differs from the target's \(4,\)"):
+        train_step(net, opt, batch, torch.device("cpu"), None)
+    # what the check prevents: MSE of (N, 1) against (N,) is over N×N pairs, its optimum the batch mean
+    y = torch.tensor([0.0, 1.0, 2.0, 3.0])
+    with pytest.warns(UserWarning, match="broadcasting"):
+        broadcast = torch.nn.functional.mse_loss(torch.full((4, 1), 1.5), y)
+    assert float(broadcast) == pytest.approx(float(((y - 1.5) ** 2).mean()))
+    check_shapes(torch.zeros(4), y)  # equal shapes pass
+
+
+def test_every_model_builds_and_returns_one_value_per_image():
+    for arch in MODELS:
+        net = build(ModelConfig(348, 128, arch=arch)).eval()
+        assert net(torch.rand(2, 3, 128, 348)).shape == (2,)
+        dense = build(ModelConfig(348, 128, arch=arch, outputs=6)).eval()
+        assert dense(torch.rand(2, 3, 128, 348)).shape == (2, 6)
+    assert isinstance(build(ModelConfig(348, 128)), AppdNet)
+    with pytest.raises(TrainError, match="model must be one of"):
+        build(ModelConfig(348, 128, arch="nope"))
+
+
+def test_patch_net_sees_every_pixel_through_a_stride_4_stem_and_costs_less_than_the_paper_cnn():
+    net = PatchNet(ModelConfig(1392, 512))
+    stem = net.features[0]
+    assert stem.kernel_size == (PATCH, PATCH) and stem.stride == (PATCH, PATCH)  # non-overlapping, none skipped
+    # one pixel's change reaches the output: no stride skips it
+    x = torch.rand(1, 3, 512, 1392)
+    y = x.clone()
+    y[0, :, 257, 695] += 0.5
+    net.eval()
+    with torch.no_grad():
+        assert float((net.features(net.normalize(x)) - net.features(net.normalize(y))).abs().max()) > 0
+
+    def macs(model: torch.nn.Module, w: int, h: int) -> int:
+        total = 0
+
+        def hook(m, _, out):
+            nonlocal total
+            total += out.numel() * m.in_channels * m.kernel_size[0] * m.kernel_size[1] // m.groups
+
+        handles = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, torch.nn.Conv2d)]
+        with torch.no_grad():
+            model(torch.rand(1, 3, h, w))
+        for handle in handles:
+            handle.remove()
+        return total
+
+    assert macs(net, 1392, 512) < 0.5 * macs(AppdNet(ModelConfig(348, 128)).eval(), 348, 128)
+
+
+def test_fit_model_patch_trains_and_its_checkpoint_reloads(tmp_path, capsys):
+    shards = write_shards(tmp_path / "shards", n=24, size=(128, 128), per_shard=12)
+    run = tmp_path / "run"
+    main(["fit", "--shards", str(shards), "--run", str(run), "--steps", "3", "--batch", "4", "--workers", "0",
+          "--val-split", "none", "--model", "patch", "--quiet"])
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["step"] == 3
+    ckpt = load(run / "last.pt")
+    assert ckpt["config"]["model"]["arch"] == "patch" and ckpt["config"]["fit"]["model"] == "patch"
+    assert isinstance(build_model(ckpt), PatchNet)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import csv
 import json
 import sys
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import click
 
@@ -148,9 +148,13 @@ def _sized(name: str, help_text: str, **kw):
 @_sized("--mount", "Synthetic camera pose spread (appdgen synth --mount).", type=click.Choice(["car", "loose"]))
 @click.option("--offline", is_flag=True,
               help="Build every split and fit on the shards, instead of fit --online on fresh pairs of the frames.")
+@_sized("--model", "fit --model.", type=click.Choice(list(MODELS)))
+@click.option("--detector", is_flag=True,
+              help="Run the detector comparison instead (train.detector: every arm × target on --samples fresh pairs "
+                   "each, tested on the training views, a new viewpoint and unseen streets); prints its table.")
 @click.option("--overwrite", is_flag=True, help="Replace a previous run in --out.")
 @click.option("--quiet", is_flag=True, help="No progress lines.")
-def experiment(tiny: bool, offline: bool, **kw) -> None:
+def experiment(tiny: bool, offline: bool, detector: bool, **kw) -> None:
     """Synthesize full-size KITTI 02 frames, fit the paper's CNN on fresh pairs of them (or --offline on a build),
     evaluate on built test frames; prints one line."""
     from train.experiment import ExperimentOptions, run, summary_line, tiny as tiny_sizes
@@ -159,6 +163,16 @@ def experiment(tiny: bool, offline: bool, **kw) -> None:
     if "steps" in given:
         given["minutes"] = None
     opts = ExperimentOptions(online=not offline, **{"image_format" if k == "format" else k: v for k, v in given.items()})
+    if detector:
+        from train.detector import table
+        from train.experiment import detector_options, run_detector
+
+        o = detector_options(opts, tiny)
+        # explicit sizes win over --tiny's
+        o = replace(o, **{k: v for k, v in {"frames": given.get("frames"), "images": given.get("samples")}.items()
+                          if v is not None})
+        click.echo(table(run_detector(o)["rows"]))
+        return
     result = run(tiny_sizes(opts) if tiny else opts)
     click.echo(summary_line(result))
 

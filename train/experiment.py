@@ -46,6 +46,7 @@ class ExperimentOptions:
     seed: int = 0
     mount: str = "car"
     online: bool = True  # fit on fresh pairs (fit --online); False: build every split and fit on the shards
+    model: str = "paper"  # fit --model
     overwrite: bool = False
     quiet: bool = False
 
@@ -168,7 +169,7 @@ def run(opts: ExperimentOptions) -> dict:
         steps=opts.steps or 10**9, max_minutes=None if opts.steps else opts.minutes, batch=opts.batch, lr=opts.lr,
         workers=workers, ckpt_every=500, val_max=min(500, opts.val_frames * per_frame(opts)),  # offline's val count
         log_every=10, seed=opts.seed, device=opts.device,
-        normalize=opts.normalize, quiet=opts.quiet,
+        normalize=opts.normalize, model=opts.model, quiet=opts.quiet,
     ))
     lap("fit")
     best = Path(fitted["best"] or fitted["last"])
@@ -194,3 +195,23 @@ def summary_line(r: dict) -> str:
             f"(ratio {'n/a' if ratio is None else f'{ratio:.2f}'}) on {t['n']} images; train "
             f"{r['fit']['images_per_s'] or 0:.0f} images/s, {r['fit']['images']} images ({seen}) at {w}x{h} on "
             f"{r['device']}; {stages}; total {sum(s.values()):.0f} s")
+
+
+def detector_options(opts: ExperimentOptions, tiny_sizes: bool = False):
+    """The detector comparison (train.detector) at this experiment's sizes: --frames training streets, --samples
+    images per arm, --test-frames split into sequences of 10; TINY's sizes with `tiny_sizes`."""
+    from train.detector import TINY as DETECTOR_TINY, DetectorOptions
+
+    o = DetectorOptions(out=opts.out, frames=opts.frames, sequences=max(1, opts.test_frames // 10),
+                        images=opts.samples, batch=opts.batch, seed=opts.seed, device=opts.device,
+                        jobs=opts.jobs or 1)
+    return replace(o, **DETECTOR_TINY) if tiny_sizes else o
+
+
+def run_detector(o) -> dict:
+    """Every arm of the detector comparison (in-process, one stream after the other); returns its summary."""
+    from train import runtime
+    from train.detector import run as run_arms
+
+    device = runtime.pick_device(o.device)
+    return run_arms(replace(o, device=device.type), parallel=device.type == "cpu")

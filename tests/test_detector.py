@@ -1,0 +1,95 @@
+"""The detector comparison (train.detector, benchmarks/detector.py): its metrics, its dense target, a run of every arm."""
+from __future__ import annotations
+
+import itertools
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from appdgen.geometry.appd import px_to_pct  # noqa: E402
+from appdgen.calib.defaults import default_calibration  # noqa: E402
+from appdgen.sampling.options import SamplingOptions  # noqa: E402
+from appdgen.synth import scale_calibration  # noqa: E402
+from train.detector import ARMS, FIELD_COLUMNS, auc, metrics, spearman, targets  # noqa: E402
+from train.experiment import ExperimentOptions, detector_options, run_detector  # noqa: E402
+from train.online import Scene  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_spearman_is_pearson_of_the_ranks_and_ties_share_their_rank():
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=50), rng.normal(size=50)
+    rank = lambda x: np.argsort(np.argsort(x))  # noqa: E731 (no ties here)
+    assert spearman(a, b) == pytest.approx(np.corrcoef(rank(a), rank(b))[0, 1])
+    assert spearman(a, a**3) == pytest.approx(1.0) and spearman(a, -a) == pytest.approx(-1.0)
+    # ties: x = [1, 1, 2] has ranks [0.5, 0.5, 2]; against y = [0, 1, 2] (ranks 0, 1, 2) that is r = √3/2
+    assert spearman(np.array([1.0, 1.0, 2.0]), np.array([0.0, 1.0, 2.0])) == pytest.approx(np.sqrt(3) / 2)
+
+
+def test_auc_is_the_fraction_of_correctly_ordered_pairs():
+    rng = np.random.default_rng(1)
+    score, positive = rng.normal(size=40).round(1), rng.random(40) < 0.4
+    pairs = [(p, n) for p, n in itertools.product(score[positive], score[~positive])]
+    brute = np.mean([1.0 if p > n else 0.5 if p == n else 0.0 for p, n in pairs])
+    assert auc(score, positive) == pytest.approx(brute)
+    assert auc(positive.astype(float), positive) == 1.0 and np.isnan(auc(score, np.zeros(40, bool)))
+
+
+def test_metrics_score_a_perfect_and_a_mean_predictor():
+    rng = np.random.default_rng(2)
+    truth = np.repeat(rng.uniform(0, 1, 6), 5)  # 6 sequences of 5 frames, one miscalibration each
+    perfect = metrics(truth, truth, truth, 0.5, 5)
+    assert perfect["ratio"] == 0 and perfect["seq_mean"] == 0 and perfect["auc"] == 1.0
+    noisy = truth + rng.normal(0, 0.2, truth.shape)
+    m = metrics(np.full_like(truth, 0.5), truth, truth, 0.5, 5)
+    assert m["ratio"] == pytest.approx(1.0) and m["seq_median"] == pytest.approx(1.0) and m["sequences"] == 6
+    # averaging a sequence's noisy predictions helps: the sequence ratio is below the per-image one
+    n = metrics(noisy, truth, truth, 0.5, 5)
+    assert n["seq_mean"] < n["ratio"]
+
+
+def test_the_dense_targets_read_off_is_appd_and_bend():
+    ref = scale_calibration(default_calibration(), 0.25)
+    scene = Scene(ref, "02", ref.size, SamplingOptions.parse(ref, None, 1.0, 0.01, None, "cubic"))
+    sampler = scene.sampler()
+    for i in range(5):
+        draw = sampler.draw(3, i)
+        appd, bend, dense = targets(scene, draw)
+        points = dense.reshape(-1, 4)
+        assert len(points) == FIELD_COLUMNS * 4  # 12 × 4 at KITTI's aspect
+        assert appd == pytest.approx(px_to_pct(draw.appd_px, ref))
+        # the coarse grid's mean lengths are the labels to a few per cent (the field is smooth)
+        assert np.hypot(points[:, 0], points[:, 1]).mean() == pytest.approx(appd, rel=0.05, abs=1e-4)
+        assert np.hypot(points[:, 2], points[:, 3]).mean() == pytest.approx(bend, rel=0.1, abs=1e-4)
+        assert bend <= appd * 1.05 + 1e-6
+
+
+def test_every_arm_runs_on_cpu_through_the_experiment(tmp_path):
+    o = detector_options(ExperimentOptions(out=str(tmp_path / "d")), tiny_sizes=True)
+    o = replace(o, frames=4, sequences=1, length=2, images=4, batch=4, stats=4, recal=4, floor_images=4)
+    summary = run_detector(o)
+    found = {(r["arm"], r["target"], r["axis"]) for r in summary["rows"]}
+    networks = [a for a in ARMS if a.model != "plumbline"]
+    for arm in networks:
+        for axis in ("views", "viewpoint", "unseen"):
+            for target in (("appd", "bend") if arm.target == "field" else (arm.target,)):
+                assert (arm.name, target, axis) in found
+    assert all(np.isfinite(r["ratio"]) for r in summary["rows"])
+    assert summary["streams"]["full"]["size"] == [1392, 512] and summary["streams"]["low"]["size"] == [348, 128]
+
+
+@pytest.mark.heavy
+def test_the_benchmark_tiny_mode_prints_every_arm(tmp_path):
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "detector.py"), "--tiny", "--out",
+                          str(tmp_path / "d")], capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    for arm in ARMS:
+        if arm.model != "plumbline":
+            assert f"| {arm.name} |" in out
+    assert '"load_before"' in out

@@ -9,7 +9,7 @@ DEMO := demo
 # The CPU build of torch (an unpinned torch pulls a multi-GB CUDA build).
 TORCH := torch==2.13.0
 
-.PHONY: demo test test-core test-fast test-heavy train train-one-scene paper-scale paper-scale-tiny device-wheels bench bench-synth bench-render bench-rss clean
+.PHONY: demo test test-core test-fast test-heavy train train-one-scene paper-scale paper-scale-tiny paper-scale-detector detector detector-tiny device-wheels bench bench-synth bench-render bench-rss clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -77,6 +77,18 @@ paper-scale: $(TRAIN_STAMP)
 # The same code at 348x128 with small sizes: under 3 minutes on 2 CPU cores. Proves the chain, not the quality.
 paper-scale-tiny: $(TRAIN_STAMP)
 	$(PY) -m train experiment --tiny --out runs/paper-scale-tiny --overwrite $(ARGS)
+
+# The detector comparison (docs/training.md, issue 23) for the accelerator: every arm (paper CNN at 348x128, patch
+# network at 1392x512 on appd, bend and the dense field, the plumb-line floor) on --samples fresh pairs each.
+paper-scale-detector: $(TRAIN_STAMP)
+	$(PY) -m train experiment --detector --out runs/paper-scale-detector --samples 8000 $(ARGS)
+
+# The same comparison on 2 CPU cores (the table in docs/training.md), and its few-minute smoke run.
+detector: $(TRAIN_STAMP)
+	nice -n 10 $(PY) benchmarks/detector.py --images 6000 --frames 300 --sequences 16 --out runs/detector $(ARGS)
+
+detector-tiny: $(TRAIN_STAMP)
+	$(PY) benchmarks/detector.py --tiny --out runs/detector-tiny $(ARGS)
 
 # Wheels the accelerator machine lacks (its python3 has CUDA torch, OpenCV, pyarrow, click, joblib, pyyaml but not
 # webdataset): pure-Python, carried in .whl/ (git-ignored). See docs/training.md, "Running it on the accelerator".

@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import itertools
+import json
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +17,7 @@ from appdgen.calib.defaults import default_calibration  # noqa: E402
 from appdgen.sampling.options import SamplingOptions  # noqa: E402
 from appdgen.synth import scale_calibration  # noqa: E402
 from train.detector import ARMS, FIELD_COLUMNS, auc, metrics, spearman, targets  # noqa: E402
-from train.experiment import ExperimentOptions, detector_options, run_detector  # noqa: E402
+from train.cli import main  # noqa: E402
 from train.online import Scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,18 +71,20 @@ def test_the_dense_targets_read_off_is_appd_and_bend():
         assert bend <= appd * 1.05 + 1e-6
 
 
-def test_every_arm_runs_on_cpu_through_the_experiment(tmp_path):
-    o = detector_options(ExperimentOptions(out=str(tmp_path / "d")), tiny_sizes=True)
-    o = replace(o, frames=4, sequences=1, length=2, images=4, batch=4, stats=4, recal=4, floor_images=4)
-    summary = run_detector(o)
+@pytest.mark.slow
+def test_every_arm_runs_on_cpu_through_the_experiment(tmp_path, capsys):
+    out = tmp_path / "d"
+    main(["experiment", "--detector", "--tiny", "--out", str(out), "--frames", "4", "--samples", "4"])
+    printed = capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
     found = {(r["arm"], r["target"], r["axis"]) for r in summary["rows"]}
-    networks = [a for a in ARMS if a.model != "plumbline"]
-    for arm in networks:
+    for arm in (a for a in ARMS if a.model != "plumbline"):
         for axis in ("views", "viewpoint", "unseen"):
             for target in (("appd", "bend") if arm.target == "field" else (arm.target,)):
-                assert (arm.name, target, axis) in found
+                assert (arm.name, target, axis) in found and f"| {arm.name} | {target} |" in printed
     assert all(np.isfinite(r["ratio"]) for r in summary["rows"])
     assert summary["streams"]["full"]["size"] == [1392, 512] and summary["streams"]["low"]["size"] == [348, 128]
+    assert summary["streams"]["full"]["images"] == 4 and len(list((out / "raw" / "full" / "train").iterdir())) == 4
 
 
 @pytest.mark.heavy

@@ -312,7 +312,8 @@ def floor_arms(arms: list[Arm], s: Stream, o: DetectorOptions, tests: dict[str, 
     images = list(pairs["image"].transpose(0, 2, 3, 1))
     out = {}
     for arm in arms:
-        floor = PlumbLine().fit(images, pairs[arm.target])
+        floor = PlumbLine()
+        floor.fit(images, pairs[arm.target])
         out[arm.name] = {"label_mean": float(pairs[arm.target].mean()), "predictions": {
             axis: {arm.target: [float(v) for v in floor.predict(list(t["image"].transpose(0, 2, 3, 1)))]}
             for axis, t in tests.items()}, "cpu_s": time.process_time() - start}
@@ -337,6 +338,9 @@ def run_stream(o: DetectorOptions, stream: str) -> dict:
         data_s += time.process_time() - t0
         for n in nets:
             losses[n.arm.name].append(n.step(batch, dtype))
+        if (j + 1) % 50 == 0:
+            print(f"detector {stream}: {(j + 1) * o.batch} images, {time.process_time() - start:.0f} CPU s, loss "
+                  + ", ".join(f"{k} {np.mean(v[-50:]):.3f}" for k, v in losses.items()), file=sys.stderr, flush=True)
     train_s = time.process_time() - start
     recal = train_pairs(s, RECAL_SEED, 0, o.recal)
     tests = {axis: axis_pairs(s, axis, o) for axis in axes(o)}

@@ -260,3 +260,12 @@ def test_offset_frame_is_the_same_street_seen_from_the_side():
     assert np.abs(a.astype(int) - c).mean() > 1.0  # moved: the picture changes ...
     # ... but it is the same street: same sky and light, so the colour statistics barely move
     assert np.abs(a.reshape(-1, 3).mean(0) - c.reshape(-1, 3).mean(0)).max() < 8.0
+
+
+def test_synth_offset_option_renders_the_moved_camera(tmp_path):
+    result = run_cli(["synth", "--frames", "1", "--scale", "0.1", "--seed", "4", "--offset", "0.4", "--out",
+                      str(tmp_path / "moved"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    written = cv2.imread(str(tmp_path / "moved" / "frame_000000.png"))
+    expected = render_frame(KITTI_2011_09_26["02"], frame_rng(4, 0), 0.1, dataclasses.replace(CAR, offset=0.4))
+    np.testing.assert_array_equal(written, expected)

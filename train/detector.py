@@ -332,7 +332,7 @@ def run_stream(o: DetectorOptions, stream: str) -> dict:
     s = open_stream(o, stream)
     nets = [Network(a, train_pairs(s, o.seed, 0, o.stats), o, device) for a in arms if a.model != "plumbline"]
     start, data_s, losses = time.process_time(), 0.0, {n.arm.name: [] for n in nets}
-    for j in range(math.ceil(o.images / o.batch)):
+    for j in range(math.ceil(o.images / o.batch) if nets else 0):
         t0 = time.process_time()
         batch = train_pairs(s, o.seed, j * o.batch, min(o.batch, o.images - j * o.batch))
         data_s += time.process_time() - t0
@@ -349,6 +349,8 @@ def run_stream(o: DetectorOptions, stream: str) -> dict:
               "truth": {axis: {t: tests[axis][t].tolist() for t in ("appd", "bend")} for axis in tests}}
     for n in nets:
         n.fit_line(recal, dtype)
+        # the weights, so that a later change of the scoring re-scores without retraining
+        torch.save(n.net.state_dict(), Path(o.out) / f"{stream}-{n.arm.name.replace('/', '-')}.pt")
         w = max(1, len(losses[n.arm.name]) // 10)
         result["arms"][n.arm.name] = {
             "label_mean": n.label_mean[n.arm.target] if n.arm.target != "field" else n.label_mean,
@@ -387,6 +389,15 @@ def auc(score: np.ndarray, positive: np.ndarray) -> float:
     return float(greater + 0.5 * ties)
 
 
+def bootstrap_se(pred: np.ndarray, truth: np.ndarray, mean: float, length: int, rounds: int = 500) -> float:
+    """Standard error of MAE / mean-predictor MAE when the sequences (the axis's miscalibrations) are resampled:
+    how much the ratio owes to which few miscalibrations the axis drew."""
+    err = np.abs(pred - truth).reshape(-1, length).mean(1)
+    base = np.abs(mean - truth).reshape(-1, length).mean(1)
+    pick = np.random.default_rng(0).integers(len(err), size=(rounds, len(err)))
+    return float(np.std(err[pick].sum(1) / np.maximum(base[pick].sum(1), 1e-12)))
+
+
 def metrics(pred: np.ndarray, truth: np.ndarray, appd: np.ndarray, mean: float, length: int) -> dict:
     """Per image: MAE / mean-predictor MAE, Spearman ρ, AUC of APPD > THRESHOLD; per sequence (`length`
     consecutive images, one miscalibration): the mean and the median prediction's MAE / the mean predictor's."""
@@ -394,7 +405,8 @@ def metrics(pred: np.ndarray, truth: np.ndarray, appd: np.ndarray, mean: float, 
     seq_pred = pred.reshape(-1, length)
     seq_truth = truth.reshape(-1, length)[:, 0]
     seq_base = np.abs(mean - seq_truth).mean()
-    return {"ratio": float(np.abs(pred - truth).mean() / base), "mae": float(np.abs(pred - truth).mean()),
+    return {"ratio": float(np.abs(pred - truth).mean() / base), "ratio_se": bootstrap_se(pred, truth, mean, length),
+            "mae": float(np.abs(pred - truth).mean()),
             "mean_mae": float(base), "rho": spearman(pred, truth), "auc": auc(pred, appd > THRESHOLD),
             "seq_mean": float(np.abs(seq_pred.mean(1) - seq_truth).mean() / seq_base),
             "seq_median": float(np.abs(np.median(seq_pred, 1) - seq_truth).mean() / seq_base),
@@ -419,11 +431,12 @@ def rows(results: list[dict], o: DetectorOptions) -> list[dict]:
 
 def table(found: list[dict]) -> str:
     """The rows as a markdown table."""
-    lines = ["| arm | target | size | axis | MAE / mean | ρ | AUC @0.5 % | seq mean / mean | seq median / mean |",
+    lines = ["| arm | target | size | axis | MAE / mean (± SE over sequences) | ρ | AUC @0.5 % | seq mean / mean | "
+             "seq median / mean |",
              "|---|---|---|---|---:|---:|---:|---:|---:|"]
     for r in found:
-        lines.append(f"| {r['arm']} | {r['target']} | {r['size']} | {r['axis']} | {r['ratio']:.3f} | "
-                     f"{r['rho']:.2f} | {r['auc']:.2f} | {r['seq_mean']:.3f} | {r['seq_median']:.3f} |")
+        lines.append(f"| {r['arm']} | {r['target']} | {r['size']} | {r['axis']} | {r['ratio']:.2f} ± {r['ratio_se']:.2f} | "
+                     f"{r['rho']:.2f} | {r['auc']:.2f} | {r['seq_mean']:.2f} | {r['seq_median']:.2f} |")
     return "\n".join(lines)
 
 

@@ -18,7 +18,7 @@ from appdgen.sampling.options import SamplingOptions  # noqa: E402
 from appdgen.synth import scale_calibration  # noqa: E402
 from train.detector import ARMS, FIELD_COLUMNS, auc, metrics, spearman, targets  # noqa: E402
 from train.cli import main  # noqa: E402
-from train.online import Scene  # noqa: E402
+from train.online.recipe import PairRecipe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -57,7 +57,7 @@ def test_metrics_score_a_perfect_and_a_mean_predictor():
 
 def test_the_dense_targets_read_off_is_appd_and_bend():
     ref = scale_calibration(default_calibration(), 0.25)
-    scene = Scene(ref, "02", ref.size, SamplingOptions.parse(ref, None, 1.0, 0.01, None, "cubic"))
+    scene = PairRecipe(ref, "02", ref.size, SamplingOptions.parse(ref, None, 1.0, 0.01, None, "cubic"))
     sampler = scene.sampler()
     for i in range(5):
         draw = sampler.draw(3, i)

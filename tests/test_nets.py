@@ -1,4 +1,4 @@
-"""`fit --model`: the networks of train.model.MODELS, and the training step's shape check (the paper's loss bug)."""
+"""`fit --model`: the networks of train.nets.MODELS, and the training step's shape check (the paper's loss bug)."""
 from __future__ import annotations
 
 import json
@@ -11,8 +11,8 @@ from train.checkpoint import build_model, load  # noqa: E402
 from train.cli import main  # noqa: E402
 from train.errors import TrainError  # noqa: E402
 from train.loop import check_shapes, train_step  # noqa: E402
-from train.model import MODELS, AppdNet, ModelConfig, build  # noqa: E402
-from train.nets import PATCH, PatchNet  # noqa: E402
+from train.model import AppdNet, ModelConfig  # noqa: E402
+from train.nets import MODELS, PATCH, PatchNet, build  # noqa: E402
 from train.synthetic import write_shards  # noqa: E402
 
 

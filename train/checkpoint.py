@@ -10,7 +10,8 @@ import torch
 from appdgen.util.atomic import atomic_stream
 from train.errors import TrainError
 from appdgen.dataset.layout import TARGETS
-from train.model import NORMALIZE, ModelConfig, build
+from train.model import NORMALIZE, ModelConfig
+from train.nets import build
 
 FORMAT = "appdgen-train/1"
 
@@ -89,7 +90,7 @@ def model_config(ckpt: dict) -> ModelConfig:
 
 
 def build_model(ckpt: dict) -> torch.nn.Module:
-    """The checkpoint's network (any of train.model.MODELS) with its weights, in eval mode on the CPU."""
+    """The checkpoint's network (any of train.nets.MODELS) with its weights, in eval mode on the CPU."""
     model = build(model_config(ckpt))
     model.load_state_dict(ckpt["model"])
     return model.eval()

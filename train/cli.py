@@ -11,7 +11,7 @@ import click
 from appdgen.cli.base import recording_options, stack_options
 from appdgen.dataset.layout import TARGETS
 from train.errors import TrainError
-from train.model import MODELS
+from train.nets import MODELS
 
 DEVICE = click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 

@@ -7,7 +7,7 @@ grid, geometry.bend.warp_field; APPD and bend read off it), and the classical pl
 when present); the networks on `appd` and on `bend` (geometry.bend.split_warp, % of the raw diagonal).
 
 Every network arm of a stream sees the same images in the same order: image i of the run is fit --online's pair
-i (train.online: draw(seed, i) of the build sampler, frame frame_of(seed, i)), rendered once per stream and fed to
+i (train.online.pairs: draw(seed, i) of the build sampler, frame frame_of(seed, i)), rendered once per stream and fed to
 each arm in turn; the low and full streams draw with the same seeds from the same synthetic streets (synth frame i
 depends on (seed, i) only, at any scale). The number of training images is fixed, not the minutes.
 
@@ -47,7 +47,7 @@ INTERP = "cubic"
 
 @dataclass(frozen=True)
 class Arm:
-    """One arm: a model (train.model.MODELS, or "plumbline"), its target, the stream it sees."""
+    """One arm: a model (train.nets.MODELS, or "plumbline"), its target, the stream it sees."""
 
     model: str
     target: str
@@ -127,7 +127,7 @@ def load_frames(paths: list[Path], grey: bool, scale: float = 1.0) -> np.ndarray
     """N×H×W×3 uint8 BGR frames (grey replicated when `grey`; INTER_AREA-resized by `scale`)."""
     import cv2
 
-    from appdgen.dataset.images import read_image
+    from appdgen.sources.decode import read_image
 
     out = []
     for path in paths:
@@ -153,7 +153,8 @@ def real_frames(o: DetectorOptions) -> list[Path]:
 
 @dataclass
 class Stream:
-    """One resolution's scene (train.online.Scene: reference, size, sampling) and its frames per folder."""
+    """One resolution's scene (train.online.recipe.PairRecipe: reference, size, sampling) and its frames per
+    folder."""
 
     scene: object
     frames: dict[str, np.ndarray] = field(default_factory=dict)
@@ -164,12 +165,12 @@ def open_stream(o: DetectorOptions, stream: str) -> Stream:
     from appdgen.sampling.options import DEFAULT_ZERO_FRACTION, SamplingOptions
     from appdgen.sampling.sampler import DEFAULT_APPD_MAX
     from appdgen.synth import scale_calibration
-    from train.online import Scene
+    from train.online.recipe import PairRecipe
 
     scale = stream_scale(o, stream)
     ref = scale_calibration(reference(o), scale)
     sampling = SamplingOptions.parse(ref, None, DEFAULT_APPD_MAX, DEFAULT_ZERO_FRACTION, None, INTERP)
-    s = Stream(Scene(ref, o.camera or "02", ref.size, sampling))
+    s = Stream(PairRecipe(ref, o.camera or "02", ref.size, sampling))
     raw = Path(o.out) / "raw" / stream
     for folder in ("train", "viewpoint", "unseen"):
         s.frames[folder] = load_frames(sorted((raw / folder).glob("frame_*.png")), o.grey)
@@ -181,10 +182,11 @@ def open_stream(o: DetectorOptions, stream: str) -> Stream:
 
 def targets(scene, draw) -> tuple[float, float, np.ndarray]:
     """(APPD %, bend %, the dense field: FIELD_COLUMNS grid × (moved x, y, rest x, y) in %) of one draw."""
-    from appdgen.geometry.bend import split_warp, warp_field
+    from appdgen.geometry.bend import warp_field
+    from appdgen.sampling.sampler import target_px
 
     ref, ref_crop = scene.reference, scene.sampler().reference_rect.crop
-    bend = split_warp(ref, ref_crop, draw.calib, draw.rect.crop).bend_px
+    bend = target_px(scene.sampler(), draw, "bend")
     f = warp_field(ref, ref_crop, draw.calib, draw.rect.crop, FIELD_COLUMNS)
     dense = np.concatenate([f.moved, f.rest], axis=1).ravel()
     return px_to_pct(draw.appd_px, ref), px_to_pct(bend, ref), px_to_pct(dense, ref)
@@ -206,7 +208,7 @@ def make_pairs(scene, frames: np.ndarray, draws: list[tuple[int, int]], frame_id
 
 def train_pairs(s: Stream, seed: int, first: int, count: int) -> dict:
     """fit --online's pairs first … first + count − 1 of a run with this seed, on the stream's training frames."""
-    from train.online import frame_of
+    from train.online.pairs import frame_of
 
     n = len(s.frames["train"])
     ids = range(first, first + count)
@@ -237,7 +239,8 @@ class Network:
         import torch
 
         from train.data import PixelStats
-        from train.model import ModelConfig, build
+        from train.model import ModelConfig
+        from train.nets import build
 
         self.arm, self.device = arm, device
         stats = PixelStats()
@@ -255,10 +258,10 @@ class Network:
         self.label_mean = {t: float(first[t].mean()) for t in ("appd", "bend")}
 
     def step(self, batch: dict, dtype) -> float:
-        """One Adam step on the standardised target (fit's train_step, with its shape check)."""
+        """One Adam step on the standardised target (train.loop's train_step, with its shape check)."""
         import torch
 
-        from train.fit import train_step
+        from train.loop import train_step
 
         y = (batch[self.arm.target].reshape(len(batch["image"]), -1) - self.mean) / self.std
         label = torch.from_numpy(y.astype(np.float32))
@@ -271,7 +274,7 @@ class Network:
         import torch
 
         from train import runtime
-        from train.fit import to_input
+        from train.loop import to_input
 
         self.net.eval()
         out = []

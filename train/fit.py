@@ -56,7 +56,7 @@ class FitOptions:
     stats_samples: int = 256
     normalize: str = "channel"  # "channel": per-channel mean/std; "pixel": a per-pixel mean image, channel std
     target: str = "appd"  # what the network learns (layout.TARGETS): appd_pct, the paper's, or bend_pct
-    model: str = "paper"  # the network (train.model.MODELS)
+    model: str = "paper"  # the network (train.nets.MODELS)
     quiet: bool = False
     online: "OnlineOptions | None" = None  # train on fresh pairs drawn as it goes (train.online), not shards
 

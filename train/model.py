@@ -1,5 +1,5 @@
-"""The paper's CNN: 7 conv blocks, then dense 512 → 128 → 1 regressing APPD (% of diagonal); `build` makes any
-of MODELS (the others live in train.nets)."""
+"""The paper's CNN: 7 conv blocks, then dense 512 → 128 → 1 regressing APPD (% of diagonal); train.nets builds
+it or the other networks by ModelConfig.arch."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -17,9 +17,6 @@ NORMALIZE = ("channel", "pixel")
 #: ModelConfig.channels → the network's input channels: OpenCV's BGR colour, or one grey channel (a build from a
 #: mono camera: build.json's channels 1).
 INPUT_CHANNELS = {"bgr": 3, "grey": 1}
-#: ModelConfig.arch → the network: the paper's CNN, or train.nets' stride-4 patchify network (full-resolution
-#: detail at a quarter-size network's cost; `fit --model`).
-MODELS = ("paper", "patch")
 
 
 @dataclass(frozen=True)
@@ -153,13 +150,3 @@ class AppdNet(nn.Module):
         out = self.head(self.features(self.normalize(x)))
         return out.squeeze(1) if self.cfg.outputs == 1 else out
 
-
-def build(cfg: ModelConfig) -> nn.Module:
-    """The network cfg.arch names (MODELS), untrained."""
-    if cfg.arch not in MODELS:
-        raise TrainError(f"model must be one of {', '.join(MODELS)}, got {cfg.arch!r}")
-    if cfg.arch == "paper":
-        return AppdNet(cfg)
-    from train.nets import PatchNet  # nets builds on this module's parts
-
-    return PatchNet(cfg)

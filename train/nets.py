@@ -1,5 +1,6 @@
-"""Networks besides the paper's CNN (train.model.MODELS): a stride-4 patchify stem that reads full-resolution detail
-at about a third of the paper CNN's cost at a quarter of the resolution.
+"""The networks `fit --model` chooses from (MODELS, build): the paper's CNN (train.model.AppdNet) and a stride-4
+patchify stem that reads full-resolution detail at about a third of the paper CNN's cost at a quarter of the
+resolution.
 
 At 348×128 the bent-line signal a single image carries is under a pixel (benchmarks/visibility.py); the paper feeds
 1392×512 for it, at 16× the cost. A 4×4/stride-4 convolution keeps each 4×4 patch's detail in its channels (48
@@ -11,8 +12,10 @@ import torch
 from torch import nn
 
 from train.errors import TrainError
-from train.model import INPUT_CHANNELS, NORMALIZE, ModelConfig, Normalize, init_relu_net
+from train.model import INPUT_CHANNELS, NORMALIZE, AppdNet, ModelConfig, Normalize, init_relu_net
 
+#: ModelConfig.arch → the network: the paper's CNN, or the stride-4 patchify network (PatchNet).
+MODELS = ("paper", "patch")
 #: The stem's patch side (pixels) and the filters of the stem and of each following stride-2 conv3×3 + ReLU.
 PATCH = 4
 PATCH_FILTERS: tuple[int, ...] = (32, 32, 64, 64, 128, 128)
@@ -50,3 +53,10 @@ class PatchNet(nn.Module):
         """Predictions per image: N, or N×outputs."""
         out = self.head(self.features(self.normalize(x)))
         return out.squeeze(1) if self.cfg.outputs == 1 else out
+
+
+def build(cfg: ModelConfig) -> nn.Module:
+    """The network cfg.arch names (MODELS), untrained."""
+    if cfg.arch not in MODELS:
+        raise TrainError(f"model must be one of {', '.join(MODELS)}, got {cfg.arch!r}")
+    return AppdNet(cfg) if cfg.arch == "paper" else PatchNet(cfg)

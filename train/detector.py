@@ -110,11 +110,12 @@ def stream_scale(o: DetectorOptions, stream: str) -> float:
 
 
 def synth_all(o: DetectorOptions) -> None:
-    """OUT/raw/{low,full}/{train,viewpoint,unseen}: the same streets at both scales (reused when complete)."""
+    """OUT/raw/{low,full}/{train,viewpoint,unseen}: the same streets at both scales (reused when complete), for
+    the streams the run's arms use."""
     from appdgen.synth import CAR, synthesize
 
     calib, test = reference(o), o.sequences * o.length
-    for stream in STREAMS:
+    for stream in (s for s in STREAMS if any(a.stream == s and a.name in o.arms for a in ARMS)):
         for folder, count, seed, mount in (("train", o.frames, TRAIN_SYNTH + o.seed, CAR),
                                            ("viewpoint", test, TRAIN_SYNTH + o.seed, replace(CAR, offset=o.offset)),
                                            ("unseen", test, TEST_SYNTH + o.seed, CAR)):

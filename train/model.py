@@ -114,7 +114,22 @@ def conv_block(c_in: int, c_out: int) -> nn.Sequential:
     )
 
 
-class AppdNet(nn.Module):
+class Regressor(nn.Module):
+    """What every network of the trainer is: `normalize`, `features` and a dense `head` ending in cfg.outputs."""
+
+    cfg: ModelConfig
+
+    def reset_parameters(self) -> None:
+        """Xavier-uniform weights with the ReLU gain, zero biases (init_relu_net)."""
+        init_relu_net(self, self.head[-1])
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Predictions per image (the fit's target, % of raw diagonal): N, or N×outputs."""
+        out = self.head(self.features(self.normalize(x)))
+        return out.squeeze(1) if self.cfg.outputs == 1 else out
+
+
+class AppdNet(Regressor):
     """Image batch N×C×H×W, float in [0, 1] (C and order from cfg.channels) → predicted APPD (% of diagonal), N."""
 
     def __init__(self, cfg: ModelConfig) -> None:
@@ -141,12 +156,4 @@ class AppdNet(nn.Module):
         self.head = nn.Sequential(*layers)
         self.reset_parameters()
 
-    def reset_parameters(self) -> None:
-        """Xavier-uniform weights with the ReLU gain, zero biases (init_relu_net)."""
-        init_relu_net(self, self.head[-1])
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Predicted APPD per image (% of raw diagonal): N, or N×outputs."""
-        out = self.head(self.features(self.normalize(x)))
-        return out.squeeze(1) if self.cfg.outputs == 1 else out
 

@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from train.errors import TrainError
-from train.model import INPUT_CHANNELS, NORMALIZE, AppdNet, ModelConfig, Normalize, init_relu_net
+from train.model import INPUT_CHANNELS, NORMALIZE, AppdNet, ModelConfig, Normalize, Regressor
 
 #: ModelConfig.arch → the network: the paper's CNN, or the stride-4 patchify network (PatchNet).
 MODELS = ("paper", "patch")
@@ -22,7 +22,7 @@ PATCH_FILTERS: tuple[int, ...] = (32, 32, 64, 64, 128, 128)
 PATCH_DENSE = 256
 
 
-class PatchNet(nn.Module):
+class PatchNet(Regressor):
     """Image batch N×C×H×W in [0, 1] → N predictions (or N×cfg.outputs): a 4×4/4 patchify stem, stride-2 convs, a
     flattened (position-keeping) dense head. cfg.filters and cfg.dense are the paper's and are not used."""
 
@@ -44,15 +44,6 @@ class PatchNet(nn.Module):
         self.head = nn.Sequential(nn.Flatten(), nn.Linear(flat, PATCH_DENSE), nn.ReLU(True), nn.Dropout(cfg.dropout),
                                   nn.Linear(PATCH_DENSE, cfg.outputs))
         self.reset_parameters()
-
-    def reset_parameters(self) -> None:
-        """Xavier-uniform with the ReLU gain, zero biases (train.model.init_relu_net)."""
-        init_relu_net(self, self.head[-1])
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Predictions per image: N, or N×outputs."""
-        out = self.head(self.features(self.normalize(x)))
-        return out.squeeze(1) if self.cfg.outputs == 1 else out
 
 
 def build(cfg: ModelConfig) -> nn.Module:

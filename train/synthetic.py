@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from appdgen.calib.calibration import Calibration
+from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS
 from appdgen.dataset.images import encode_image
 from appdgen.dataset.layout import (FORMATS, STAGES, ShardStats, bend_columns, crop_columns, sample_key,
                                     shard_name)
@@ -100,7 +101,9 @@ def _summary(shard_stats: list[ShardStats], reference: Calibration, fmt: str, ap
     return {
         "appdgen_version": "synthetic", "calibration": {"camera": CAMERA, **reference.to_dict()}, "samples": samples,
         "size": [reference.width, reference.height], "format": fmt, "shard_size": per_shard, "seed": seed,
-        "appd_max": appd_max,
+        "appd_max": appd_max, "encoder": DEFAULT_ENCODER,
+        # what verify re-encodes with: the PNG encoder's library at the version that wrote the bytes
+        "libraries": {ENCODERS[DEFAULT_ENCODER].library: ENCODERS[DEFAULT_ENCODER].version()},
         "counts": {"samples": samples, "shards": len(shard_stats), "splits": dict(sorted(splits.items())),
                    "references": 0},
         "shards": [s.listing() for s in shard_stats],

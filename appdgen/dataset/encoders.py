@@ -31,6 +31,11 @@ class Encoder:
         """Whether its library is installed here."""
         return self.package is None or importlib.util.find_spec(self.package) is not None
 
+    @property
+    def library(self) -> str:
+        """The key of build.json's `libraries` that records version(): its package, or opencv (a core one)."""
+        return self.package or "opencv"
+
     def version(self) -> str:
         """Its library's version, which (with the pixels) decides the bytes."""
         raise NotImplementedError

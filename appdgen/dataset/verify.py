@@ -145,7 +145,7 @@ def _recorded_encoder(info: dict, ext: str, report: Report) -> str | None:
         report.notes.append(f"encoder {name} is not installed here ({encoder.package}): the images' encoding is "
                             f"unchecked (their sha256 is)")
         return None
-    library = encoder.package or "opencv"
+    library = encoder.library
     recorded = (info.get("libraries") or {}).get(library)
     if recorded != encoder.version():  # another version may write other bytes for the same pixels
         report.notes.append(f"{BUILD_JSON} records {library} {recorded}, this machine has {encoder.version()}: the "

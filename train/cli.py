@@ -231,11 +231,11 @@ def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str |
             device: str) -> None:
     """Predicted APPD per image of a sequence (IMAGES… or a folder, or one ROS bag or video: its frames with their
     timestamps), running median and verdict."""
-    from train.predict import Frames, predict_stream, trained_target
+    from train.predict import PredictFrames, predict_stream, trained_target
 
     if as_csv and as_json:
         raise click.UsageError("--csv and --json are exclusive")
-    frames = Frames(topic, every, min_interval, start, end, skip_bad)
+    frames = PredictFrames(topic, every, min_interval, start, end, skip_bad)
     preds = predict_stream(ckpt, list(images), calib, camera, threshold, window, batch, resize, device, max_fov,
                            frames)
     rows, writer, count, last = [], None, 0, None

@@ -55,7 +55,7 @@ def list_images(inputs: list[str]) -> list[Path]:
 
 
 @dataclass(frozen=True)
-class Frames:
+class PredictFrames:
     """Which frames of a recording predict reads (as build's --topic, --every, --min-interval, --start, --end),
     and whether undecodable frames are skipped (counted in `skipped`) instead of refused."""
 
@@ -68,7 +68,7 @@ class Frames:
     skipped: list = field(default_factory=list, compare=False)
 
 
-def sequence(inputs: list[str], frames: Frames, calib: str | None, camera: str | None) -> Iterator[Item]:
+def sequence(inputs: list[str], frames: PredictFrames, calib: str | None, camera: str | None) -> Iterator[Item]:
     """The images in order: a recording's chosen frames, streamed (the topic as build chooses it), else the
     files and folders' images."""
     from appdgen.sources.recordings import is_recording
@@ -90,7 +90,7 @@ def sequence(inputs: list[str], frames: Frames, calib: str | None, camera: str |
     yield from recording_items(Path(inputs[0]), frames, calib, camera)
 
 
-def recording_items(path: Path, frames: Frames, calib: str | None, camera: str | None) -> Iterator[Item]:
+def recording_items(path: Path, frames: PredictFrames, calib: str | None, camera: str | None) -> Iterator[Item]:
     """The chosen frames of a bag or video as items, in one pass (memory flat over hour-long recordings)."""
     from appdgen.calib.formats import calibration_topic
     from appdgen.sources.recordings import FrameChoice, choose_topic, stream
@@ -224,7 +224,8 @@ class RunningVerdict:
 
 def predict(ckpt_path: str, inputs: list[str], calib: str | None = None, camera: str | None = None,
             threshold: float = 1.0, window: int = 9, batch: int = 32, resize: bool = False,
-            device: str = "auto", max_fov: float | None = None, frames: Frames | None = None) -> list[Prediction]:
+            device: str = "auto", max_fov: float | None = None,
+            frames: PredictFrames | None = None) -> list[Prediction]:
     """Predictions over a sequence of images, in order (max_fov: degrees, only for a checkpoint without one)."""
     return list(predict_stream(ckpt_path, inputs, calib, camera, threshold, window, batch, resize, device, max_fov,
                                frames))
@@ -237,7 +238,7 @@ def trained_target(ckpt_path: str) -> str:
 
 def predict_stream(ckpt_path: str, inputs: list[str], calib: str | None = None, camera: str | None = None,
                    threshold: float = 1.0, window: int = 9, batch: int = 32, resize: bool = False,
-                   device: str = "auto", max_fov: float | None = None, frames: Frames | None = None
+                   device: str = "auto", max_fov: float | None = None, frames: PredictFrames | None = None
                    ) -> Iterator[Prediction]:
     """predict's predictions as each batch is done (a recording is read once, frame by frame)."""
     dev = runtime.pick_device(device)
@@ -251,7 +252,7 @@ def predict_stream(ckpt_path: str, inputs: list[str], calib: str | None = None, 
     prep = rectifier(calib, camera, size, rule) if calib else size_check(size, resize)
     verdicts = RunningVerdict(window, threshold)
     found = False
-    for chunk, images in batches(sequence(inputs, frames or Frames(), calib, camera), prep, batch,
+    for chunk, images in batches(sequence(inputs, frames or PredictFrames(), calib, camera), prep, batch,
                                  model.cfg.in_channels):
         found = True
         for (name, stamp, _), value in zip(chunk, run_model(model, images, dev)):

@@ -147,8 +147,8 @@ def sampling_options(command: Callable) -> Callable:
         click.option("--ranges", default=None, metavar="NAME=LO:HI,...",
                      help="Override ranges of the lens model's parameters: '%' bounds are relative to the reference "
                           "(fx=-5%:20%), bare ones absolute (k3=-0.01:0.01). Defaults: focal -5%:20%, principal "
-                          "point -5%:5%, non-zero coefficients -15%:15% (zero ones: none for radtan, see docs/lens-models.md "
-                          "otherwise)."),
+                          "point -5%:5%, non-zero coefficients -15%:15% (zero ones: none for radtan, see "
+                          "docs/lens-models.md otherwise)."),
         click.option("--appd-max", default=DEFAULT_APPD_MAX, show_default=True,
                      help="Largest APPD label, % of the raw diagonal; refused up front when the ranges cannot reach "
                           "it."),

@@ -305,3 +305,12 @@ def test_list_file_with_split_column(setup: Setup, tmp_path: Path) -> None:
     assert [r["split"] for r in rows] == ["train"] * 3 + ["val"] * 3 + ["all"] * 3
     assert [r["raw_path"] for r in rows[::3]] == [str(p) for p in images]
 
+
+
+def test_more_jobs_than_shards_is_said_since_a_shard_is_one_workers_work(setup: Setup, tmp_path: Path) -> None:
+    args = [a for a in setup.args(tmp_path / "one", "--shard-size", str(setup.samples), jobs=2) if a != "--quiet"]
+    result = run_cli(args)
+    assert result.exit_code == 0, result.output
+    assert "note: 1 shard(s) for --jobs 2" in result.stderr
+    quiet = run_cli(setup.args(tmp_path / "quiet", "--shard-size", str(setup.samples), jobs=2))
+    assert quiet.exit_code == 0 and "note:" not in quiet.stderr

@@ -95,6 +95,9 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
         **SamplingOptions.parse(reference, ranges, appd_max, zero_fraction, max_fov, interp).build_fields(reference),
         channels=resolve_channels(channels_choice, inputs.mono), recordings=inputs.recordings, encoder=encoder,
     )
+    if workers > config.shard_count and not quiet:
+        click.echo(f"note: {config.shard_count} shard(s) for --jobs {workers}: a shard is one worker's work, so at "
+                   f"most {config.shard_count} run (a smaller --shard-size spreads the build)", err=True)
     summary = run_build(config, Path(out_dir), workers, backend, scheduler, resume, overwrite,
                         progress=not quiet, command=["appdgen", *sys.argv[1:]], skipped=skipped)
     t = summary["timings"]

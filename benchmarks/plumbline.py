@@ -16,11 +16,11 @@ import time
 import cv2
 import numpy as np
 
+from appdgen.analysis.studies import spearman
 from appdgen.calib.defaults import default_calibration
 from appdgen.geometry.appd import px_to_pct
-from appdgen.geometry.bend import split_warp
 from appdgen.geometry.remap import remap_image
-from appdgen.sampling.sampler import Sampler
+from appdgen.sampling.sampler import Sampler, target_px
 from appdgen.synth import frame_rng, render_frame, scale_calibration
 from appdgen.util.sizes import parse_size
 from train.plumbline import PlumbLine, feature_matrix
@@ -33,7 +33,6 @@ def pairs(scenes: int, scale: float, seed: int, draws: int = 1, size: tuple[int,
     diagonal)."""
     reference = scale_calibration(default_calibration(), scale)
     sampler = Sampler(reference, appd_max=1.0, labels=True, size=size)
-    crop = sampler.reference_rect.crop
     images, appd, bend = [], [], []
     for scene in range(scenes):
         raw = render_frame(reference, frame_rng(seed, scene))
@@ -41,13 +40,8 @@ def pairs(scenes: int, scale: float, seed: int, draws: int = 1, size: tuple[int,
             draw = sampler.draw(seed, i)
             images.append(remap_image(raw, draw.rect))
             appd.append(px_to_pct(draw.appd_px, reference))
-            bend.append(px_to_pct(split_warp(reference, crop, draw.calib, draw.rect.crop).bend_px, reference))
+            bend.append(px_to_pct(target_px(sampler, draw, "bend"), reference))
     return images, {"appd_pct": np.array(appd), "bend_pct": np.array(bend)}
-
-
-def spearman(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman's rank correlation (no tie correction: the values are continuous)."""
-    return float(np.corrcoef(np.argsort(np.argsort(a)), np.argsort(np.argsort(b)))[0, 1])
 
 
 def score(x: np.ndarray, y: np.ndarray, alpha: float | None, folds: int, draws: int = 1

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from appdgen.analysis.studies import spearman  # ties share their mean rank; nan when a side is constant
 from appdgen.geometry.appd import px_to_pct
 
 #: What a network regresses: APPD or bend (one value, % of diagonal) or the dense field (FIELD_COLUMNS grid).
@@ -366,21 +367,6 @@ def run_stream(o: DetectorOptions, stream: str) -> dict:
 
 
 # --- metrics --------------------------------------------------------------------------------------------
-
-
-def ranks(x: np.ndarray) -> np.ndarray:
-    """0-based ranks, ties sharing their average rank."""
-    _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
-    ends = np.cumsum(counts)
-    return ((ends - counts + ends - 1) / 2)[inverse]
-
-
-def spearman(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman's rank correlation (nan when either side is constant)."""
-    ra, rb = ranks(a), ranks(b)
-    if ra.std() == 0 or rb.std() == 0:
-        return float("nan")
-    return float(np.corrcoef(ra, rb)[0, 1])
 
 
 def auc(score: np.ndarray, positive: np.ndarray) -> float:

@@ -32,7 +32,7 @@ from appdgen.geometry.crop import Crop, check_max_fov, check_output_size, valid_
 from appdgen.util.distribute import check_parallel, run_unordered
 from appdgen.errors import AppdgenError
 from appdgen.sources.decode import as_channels, read_image
-from appdgen.dataset.encoders import DEFAULT_ENCODER, get_encoder
+from appdgen.dataset.encoders import DEFAULT_ENCODER, LEGACY_ENCODER, get_encoder
 from appdgen.dataset.images import encode_image
 from appdgen.dataset.layout import (FORMATS, INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, STAGES, ShardStats,
                                     BEND_COLUMNS, CROP_COLUMNS, bend_columns, crop_columns, fragment_name,
@@ -219,7 +219,7 @@ def _image_line(image: RawImage) -> str:
 def plan_content(record: dict) -> dict:
     """The plan inside a recorded plan.json: without the names, which may differ for the same content."""
     content = {k: v for k, v in record.items() if k not in ("images", "recordings")}
-    content.setdefault("encoder", DEFAULT_ENCODER)  # plans from before --encoder wrote OpenCV's PNG
+    content.setdefault("encoder", LEGACY_ENCODER)
     calibration = record.get("calibration")
     if isinstance(calibration, dict):
         content["calibration"] = {k: v for k, v in calibration.items() if k != "path"}
@@ -525,7 +525,7 @@ def _versions(config: BuildConfig) -> dict:
     import simplejpeg  # decodes JPEG inputs (sources/decode.py)
 
     encoder = get_encoder(config.encoder, config.channels)
-    package = {encoder.package: encoder.version()} if encoder.package and config.image_format == "png" else {}
+    png = {encoder.library: encoder.version()} if config.image_format == "png" else {}
     return {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
             "pyarrow": pyarrow.__version__, "joblib": joblib.__version__, "simplejpeg": simplejpeg.__version__,
-            **package}
+            **png}

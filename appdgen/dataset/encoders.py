@@ -95,6 +95,9 @@ ENCODERS: dict[str, Encoder] = {e.name: e for e in (OpenCVEncoder(), FpngEncoder
 #: The default: the encoder every install has (fpng is an optional extra, and a build's bytes must not depend on
 #: which extras a machine has).
 DEFAULT_ENCODER = "opencv"
+#: What builds and plans from before --encoder wrote (their build.json/plan.json name none): OpenCV's PNG, whatever
+#: DEFAULT_ENCODER becomes.
+LEGACY_ENCODER = "opencv"
 
 
 def get_encoder(name: str, channels: int = 3) -> Encoder:

@@ -19,7 +19,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS
+from appdgen.dataset.encoders import ENCODERS, LEGACY_ENCODER
 from appdgen.dataset.layout import (BUILD_JSON, HASH_COLUMN, INDEX, RECORD_EXT, SHARD_GLOB, member_names,
                                     member_record, record_json, sample_key, shard_name)
 from appdgen.dataset.reader import check_finished, counts, image_ext, read_index, read_info, shard_path
@@ -136,7 +136,7 @@ def _recorded_encoder(info: dict, ext: str, report: Report) -> str | None:
     with a problem (an unknown name) or a note (its package is not installed)."""
     if ext != ".png":
         return None
-    name = info.get("encoder", DEFAULT_ENCODER)
+    name = info.get("encoder", LEGACY_ENCODER)
     if name not in ENCODERS:
         report.add(BUILD_JSON, f"encoder {name!r} is not one of {', '.join(ENCODERS)}")
         return None

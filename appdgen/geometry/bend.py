@@ -80,6 +80,16 @@ class WarpField:
     columns: int
     rows: int
 
+    @property
+    def bend_px(self) -> float:
+        """Mean length of the non-affine rest (raw px): WarpSplit.bend_px."""
+        return float(np.hypot(*self.rest.T).mean())
+
+    @property
+    def appd_px(self) -> float:
+        """Mean length of the displacement on the grid (raw px): WarpSplit.appd_grid_px."""
+        return float(np.hypot(*self.moved.T).mean())
+
 
 def _split(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop, columns: int
            ) -> tuple[WarpField, np.ndarray, np.ndarray]:
@@ -117,16 +127,14 @@ def split_warp(reference: Calibration, reference_crop: Crop, sample: Calibration
                columns: int = GRID_COLUMNS) -> WarpSplit:
     """The affine/non-affine split of the warp from the reference rectification to the sample's (raw pixels);
     NO_WARP, exactly, for the reference rectification itself."""
-    if reference.size != sample.size:
-        raise ValueError(f"calibrations differ in raw size: {reference.size} vs {sample.size}")
     if sample == reference and sample_crop == reference_crop:
         return NO_WARP
     field, coef_u, coef_v = _split(reference, reference_crop, sample, sample_crop, columns)
     return WarpSplit(
-        bend_px=float(np.hypot(*field.rest.T).mean()),
+        bend_px=field.bend_px,
         **_centre_shift(reference, reference_crop, coef_u, coef_v),
         scale=float(np.sqrt(abs(coef_u[1] * coef_v[2] - coef_u[2] * coef_v[1]))),
-        appd_grid_px=float(np.hypot(*field.moved.T).mean()),
+        appd_grid_px=field.appd_px,
     )
 
 

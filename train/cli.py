@@ -103,8 +103,10 @@ def online_from(kw: dict) -> None:
               help="What the network learns: appd = APPD (appd_pct, the paper's label); bend = its non-affine part "
                    "(bend_pct, what bends straight lines; from labels.parquet offline, from each draw online).")
 @click.option("--model", default="paper", show_default=True, type=click.Choice(list(MODELS)),
-              help="The network: the paper's CNN, or patch (a stride-4 patchify stem: full-resolution detail at a "
-                   "third of the paper CNN's cost at quarter size; benchmarks/detector.py compares them).")
+              help="The model: the paper's CNN; patch (a stride-4 patchify stem: full-resolution detail at a "
+                   "third of the paper CNN's cost at quarter size); plumbline (the classical floor: line "
+                   "curvature and a ridge solved in closed form on --steps batches; no gradient steps). "
+                   "benchmarks/detector.py compares them.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @online_options
 def fit(**kw) -> None:
@@ -273,11 +275,14 @@ def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str |
 @click.option("--onnx", "onnx_path", help="ONNX file to write (needs onnx + onnxscript).")
 @click.option("--pt2", "pt2_path", help="torch.export program to write (.pt2; load with torch.export.load). "
                                         "TorchScript is not offered: torch 2.13 deprecates torch.jit.")
-def export(ckpt: str, onnx_path: str | None, pt2_path: str | None) -> None:
-    """Export to ONNX and/or a torch.export .pt2 and print the parity vs eager (max |diff| ≤ 1e-4)."""
+@click.option("--json", "json_path", help="--model plumbline: the floor's JSON, which train.plumbline reads "
+                                          "without torch.")
+def export(ckpt: str, onnx_path: str | None, pt2_path: str | None, json_path: str | None) -> None:
+    """Export to ONNX and/or a torch.export .pt2 (the plumb-line floor: --json) and print the parity vs eager
+    (max |diff| ≤ 1e-4)."""
     from train.export import export as run_export
 
-    run_export(ckpt, onnx_path, pt2_path)
+    run_export(ckpt, onnx_path, pt2_path, json_path)
 
 
 def user_errors() -> tuple[type[Exception], ...]:

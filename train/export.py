@@ -108,14 +108,41 @@ def check(name: str, diff: float | None) -> None:
         raise TrainError(f"{name}: exported model disagrees with eager PyTorch by {diff:.2e}")
 
 
-def export(ckpt_path: str, onnx_path: str | None = None, pt2_path: str | None = None) -> dict:
+def to_json(model: torch.nn.Module, path: Path, meta: dict) -> float:
+    """The plumb-line floor as train.plumbline's JSON (with meta), which PlumbLine.load reads without torch;
+    returns the largest difference between the reloaded detector and the module on example images."""
+    from train.plumbline import PlumbLine
+
+    floor = model.floor()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({**floor.to_dict(), "meta": meta}, indent=1), encoding="utf-8")
+    x = example(model)
+    images = (x * 255).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
+    reloaded = PlumbLine.load(path).predict(np.ascontiguousarray(i) for i in images)
+    with torch.no_grad():
+        return float(np.abs(reloaded - model(x).double().numpy()).max())
+
+
+def export(ckpt_path: str, onnx_path: str | None = None, pt2_path: str | None = None,
+           json_path: str | None = None) -> dict:
     """Write the requested files, printing a parity line for each; returns {format: max diff}."""
-    if not onnx_path and not pt2_path:
-        raise TrainError("nothing to export: give --onnx and/or --pt2")
+    if not onnx_path and not pt2_path and not json_path:
+        raise TrainError("nothing to export: give --onnx and/or --pt2 (a network), or --json (the plumb-line floor)")
     ckpt = checkpoint.load(ckpt_path)
     model = checkpoint.build_model(ckpt)
     meta = metadata(model, ckpt)
+    floor = model.cfg.arch == "plumbline"
+    if floor and (onnx_path or pt2_path):
+        raise TrainError(f"{ckpt_path}: the plumb-line floor runs OpenCV's line detector, which neither ONNX nor "
+                         "torch.export can hold; export it with --json (train.plumbline.PlumbLine.load reads it "
+                         "without torch)")
+    if json_path and not floor:
+        raise TrainError(f"{ckpt_path}: --json writes the plumb-line floor; this checkpoint is the "
+                         f"{model.cfg.arch} network: export it with --onnx or --pt2")
     result: dict[str, float | None] = {}
+    if json_path:
+        result["json"] = to_json(model, Path(json_path), meta)
+        check(str(json_path), result["json"])
     if pt2_path:
         result["pt2"] = to_pt2(model, Path(pt2_path), meta)
         check(str(pt2_path), result["pt2"])

@@ -11,6 +11,7 @@ import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -19,6 +20,8 @@ from appdgen.util.progress import Progress
 from train import checkpoint, runtime
 from train.errors import TrainError
 from train.model import AppdNet
+from train.nets import image_features
+from train.plumbline import PlumbLine
 
 LOG_COLUMNS = ("step", "train_loss", "val_loss", "val_mae", "lr", "images_per_s")
 
@@ -132,15 +135,17 @@ class Trainer:
         self.device, self.rank, self.world, self.run = device, rank, world, run
         self.dtype = runtime.autocast_dtype(device, opts.precision)
         self.model = checkpoint.build_model(state).to(device).to(memory_format=torch.channels_last).train()
-        self.opt = torch.optim.Adam(self.model.parameters(), lr=opts.lr)
-        if state["optimizer"] is not None:
+        params = list(self.model.parameters())
+        # A model without parameters (the plumb-line floor) is solved in closed form: no optimiser.
+        self.opt = torch.optim.Adam(params, lr=opts.lr) if params else None
+        if state["optimizer"] is not None and self.opt is not None:
             self.opt.load_state_dict(state["optimizer"])
             for group in self.opt.param_groups:
                 group["lr"] = opts.lr  # a resumed run takes the lr given now
         if state.get("rng") is not None:
             torch.set_rng_state(state["rng"])  # dropout continues as it would have: a resume repeats the losses
         self.net = self.model
-        if world > 1:
+        if world > 1 and params:  # solve() refuses a closed-form model under torchrun
             from torch.nn.parallel import DistributedDataParallel
 
             self.net = DistributedDataParallel(self.model, device_ids=[device.index] if device.type == "cuda" else None)
@@ -163,6 +168,8 @@ class Trainer:
         if step >= steps:
             print(f"fit: checkpoint is already at step {step} ≥ {steps}; nothing to do", file=sys.stderr)
             return self.summary(step, None, {})
+        if self.opt is None:
+            return self.solve(steps)
         self.announce(step, steps)
         progress = Progress(steps, "steps", enabled=self.rank == 0 and not self.opts.quiet, every=30.0, done=step)
         batches, window = self.loader(step), Window(self.device)
@@ -181,6 +188,37 @@ class Trainer:
             last = self.bookkeeping(step, steps, window, progress) or last
         progress.close()
         return self.summary(step, last["train_loss"], {k: v for k, v in last.items() if k.startswith("val")})
+
+    def solve(self, steps: int) -> dict:
+        """Fit a closed-form model (the plumb-line floor) on `steps` batches of training images (fewer when
+        --max-minutes runs out): their features, one ridge (alpha by cross-validation), then validate and save."""
+        if self.world > 1:
+            raise TrainError(f"--model {self.model.cfg.arch} fits in one process: run it without torchrun")
+        self.announce(0, steps)
+        progress = Progress(steps, "batches", enabled=not self.opts.quiet, every=30.0)
+        batches, deadline, start = self.loader(0), Deadline(self.opts.max_minutes), time.perf_counter()
+        features, targets = [], []
+        while len(features) < steps:
+            batch = next(batches, None)
+            if batch is None:
+                raise TrainError(f"no training samples for {self.plan.train.describe()}")
+            features.append(image_features(to_input(batch, self.device)))
+            targets.append(batch["label"].numpy().astype(float).ravel())
+            progress.update(len(features), f"fit: line features of {sum(map(len, targets))} images")
+            if len(features) % self.opts.log_every == 0 and deadline.passed():
+                print(f"\nfit: --max-minutes {self.opts.max_minutes:g} reached; fitting on {len(features)} batches",
+                      file=sys.stderr)
+                break
+        progress.close()
+        x, y = np.concatenate(features), np.concatenate(targets)
+        floor = PlumbLine().fit_features(x, y, alpha=None)
+        self.model.set_floor(floor)
+        self.trained += (len(y), time.perf_counter() - start)
+        loss = float(np.mean((floor.predict_features(x) - y) ** 2))
+        val = self.validate(len(features))
+        self.log.row(step=len(features), train_loss=loss, images_per_s=self.trained.rate(), **val)
+        self.save(len(features))
+        return self.summary(len(features), loss, val)
 
     def bookkeeping(self, step: int, steps: int, window: "Window", progress: Progress) -> dict | None:
         """Log/validate/checkpoint when due; returns the logged row, None when nothing was logged."""
@@ -223,7 +261,8 @@ class Trainer:
         """Checkpoint (rank 0 only; no collective, so safe inside rank-0-only code), atomically replaced."""
         if self.rank != 0:
             return
-        self.state.update(step=step, model=self.model.state_dict(), optimizer=self.opt.state_dict(),
+        self.state.update(step=step, model=self.model.state_dict(),
+                          optimizer=self.opt.state_dict() if self.opt is not None else None,
                           rng=torch.get_rng_state())
         checkpoint.save(path or self.run / "last.pt", self.state)
         if path is None:

@@ -5,26 +5,35 @@ from __future__ import annotations
 import hashlib
 import json
 import platform
+import struct
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
 import cv2
 import numpy as np
+import pandas as pd
 import pytest
 
-from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS, get_encoder
+from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS, get_encoder, png_file, sub_filtered_rows
 from appdgen.dataset.verify import verify
 from appdgen.errors import AppdgenError
 from helpers import Setup, assert_one_line_error, run_cli, tree_digest
 
 #: sha256 of fixed_image() encoded by each encoder (its library's version decides them: opencv 4.x's libpng and
-#: zlib, fpng 0.1.0). A change here changes every build's bytes: bump only on purpose, saying so.
+#: zlib, fpng 0.1.0, deflate 0.9.0's libdeflate). A change here changes every build's bytes: bump only on purpose,
+#: saying so.
 GOLDEN = {
     "opencv": "7cb8eff2f4fdc3a4c37853b7309b9405c8d5089af0f05d99c2160e7a0f095981",
     "fpng": "6de468dde85a61b951c6c41e0b2050507799a6ebc4e165768e6520968dd9ff38",
+    "libdeflate": "b72536a7968874f6beb485973bc4f160208677702f3d78f5262852747bb5282a",
 }
-GOLDEN_GREY_OPENCV = "fe4477a00c895077343fc65cff0c3bf5ae83c283958ae411e2a92adb15bb3a6a"
+#: sha256 of fixed_image()'s green channel as a grey image, for the encoders that write grey.
+GOLDEN_GREY = {
+    "opencv": "fe4477a00c895077343fc65cff0c3bf5ae83c283958ae411e2a92adb15bb3a6a",
+    "libdeflate": "2bdb263d49da453684767bc5876da2b205dd154fbb082e6022545ebe90384fb6",
+}
 
 
 def fixed_image() -> np.ndarray:
@@ -46,12 +55,85 @@ def test_fixed_image_encodes_to_the_committed_bytes(name: str) -> None:
     assert hashlib.sha256(data).hexdigest() == GOLDEN[name]
 
 
+@pytest.mark.parametrize("name", sorted(GOLDEN_GREY))
+def test_fixed_grey_image_encodes_to_the_committed_bytes(name: str) -> None:
+    grey = np.ascontiguousarray(fixed_image()[:, :, 1])
+    assert hashlib.sha256(installed(name).encode(grey)).hexdigest() == GOLDEN_GREY[name]
+
+
 def test_opencv_encoder_is_todays_png_level_1() -> None:
     image = fixed_image()
     today = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1].tobytes()
     assert ENCODERS["opencv"].encode(image) == today
-    grey = np.ascontiguousarray(image[:, :, 1])
-    assert hashlib.sha256(ENCODERS["opencv"].encode(grey)).hexdigest() == GOLDEN_GREY_OPENCV
+
+
+def png_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
+    """(tag, data) of every chunk of a PNG file, each one's CRC checked with zlib's crc32: an independent reader."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    chunks, at = [], 8
+    while at < len(data):
+        (length,), tag = struct.unpack(">I", data[at:at + 4]), data[at + 4:at + 8]
+        body, (crc,) = data[at + 8:at + 8 + length], struct.unpack(">I", data[at + 8 + length:at + 12 + length])
+        assert crc == zlib.crc32(tag + body), tag
+        chunks.append((tag, body))
+        at += 12 + length
+    return chunks
+
+
+def sub_rows_by_hand(image: np.ndarray) -> bytes:
+    """The Sub-filtered RGB scanlines, row by row in int arithmetic (the PNG spec's formula, no numpy wrapping)."""
+    rgb = image[:, :, ::-1] if image.ndim == 3 else image[:, :, None]
+    rows = b""
+    for row in rgb.reshape(image.shape[0], -1).astype(int).tolist():
+        bpp = rgb.shape[2]
+        rows += bytes([1] + [(v - (row[i - bpp] if i >= bpp else 0)) % 256 for i, v in enumerate(row)])
+    return rows
+
+
+@pytest.mark.parametrize("shape", [(48, 80, 3), (48, 80), (7, 13, 3), (5, 1), (1, 9, 3), (1, 1), (31, 1, 3)])
+def test_libdeflate_writes_sub_filtered_standard_png(shape: tuple[int, ...]) -> None:
+    image = np.random.default_rng(len(shape) * 100 + shape[1]).integers(0, 256, shape, dtype=np.uint8)
+    data = installed("libdeflate").encode(image)
+    chunks = png_chunks(data)
+    assert [tag for tag, _ in chunks] == [b"IHDR", b"IDAT", b"IEND"] and chunks[2][1] == b""
+    colour = 2 if image.ndim == 3 else 0
+    assert struct.unpack(">IIBBBBB", chunks[0][1]) == (shape[1], shape[0], 8, colour, 0, 0, 0)
+    assert zlib.decompress(chunks[1][1]) == sub_rows_by_hand(image)
+    assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), image)
+
+
+def test_png_file_frames_any_zlib_stream_for_an_independent_reader() -> None:
+    rows = np.array([[0, 10, 20, 30], [0, 40, 50, 60]], np.uint8)  # filter 0 (None): the bytes are the pixels
+    data = png_file(3, 2, 1, zlib.compress(rows.tobytes()))
+    assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), rows[:, 1:])
+    assert png_chunks(data)[0][1] == struct.pack(">IIBBBBB", 3, 2, 8, 0, 0, 0, 0)
+    assert sub_filtered_rows(rows[:, 1:]).tobytes() == bytes([1, 10, 10, 10, 1, 40, 10, 10])
+
+
+def test_libdeflate_bytes_are_the_same_in_a_fresh_process() -> None:
+    installed("libdeflate")
+    # libdeflate picks its checksum and table set-up kernels by cpuid alone (no switch to vary here); those do not
+    # change the stream (ebiggers/libdeflate#400). numpy's uint8 subtraction wraps exactly at any SIMD width and
+    # BGR->RGB is a byte permutation, so neither can change the filtered rows. What can vary here is the process:
+    # a fresh interpreter, one OpenCV thread, a frame big enough for libdeflate's match finder to rebase its tables.
+    script = """
+import hashlib, sys, cv2, numpy as np
+sys.path.insert(0, sys.argv[1])
+from test_encoders import street_like
+from appdgen.dataset.encoders import ENCODERS
+cv2.setNumThreads(1)
+print(hashlib.sha256(ENCODERS["libdeflate"].encode(street_like())).hexdigest())
+"""
+    fresh = subprocess.run([sys.executable, "-c", script, str(Path(__file__).parent)], capture_output=True,
+                           text=True, check=True).stdout.strip()
+    assert fresh == hashlib.sha256(ENCODERS["libdeflate"].encode(street_like())).hexdigest()
+
+
+def street_like() -> np.ndarray:
+    """A 512x1392 BGR frame from integer arithmetic: smooth gradients, edges and a texture (a street's statistics)."""
+    y, x = np.mgrid[0:512, 0:1392]
+    return np.stack([((x // 7) * (c + 1) + (y // 5) * 3 + ((x * y) >> 9) % 23 + 40 * ((x + 2 * y) // 97 % 2)) % 256
+                     for c in range(3)], axis=2).astype(np.uint8)
 
 
 @pytest.mark.parametrize("name", sorted(GOLDEN))
@@ -93,9 +175,9 @@ print(ext.cpu_supports_sse41(), hashlib.sha256(ext.encode_ndarray(rgb)).hexdiges
 
 
 def test_encoder_choices_are_refused_in_one_line() -> None:
-    with pytest.raises(AppdgenError, match="expected one of opencv, fpng"):
+    with pytest.raises(AppdgenError, match="expected one of opencv, fpng, libdeflate"):
         get_encoder("zopfli")
-    assert get_encoder(DEFAULT_ENCODER, 1) is ENCODERS["opencv"]
+    assert get_encoder(DEFAULT_ENCODER, 1) is ENCODERS["libdeflate"]
     with pytest.raises(AppdgenError, match="--encoder fpng: writes colour images only, not --channels 1"):
         get_encoder("fpng", 1) if ENCODERS["fpng"].available() else pytest.skip("fpng not installed")
 
@@ -118,7 +200,8 @@ def test_resume_with_another_encoder_is_refused_naming_the_plan(setup: Setup, in
     installed("fpng")
     before = tree_digest(interrupted_build)
     result = run_cli(setup.args(interrupted_build, "--resume", "--encoder", "fpng"))
-    assert_one_line_error(result, str(interrupted_build / ".parts" / "plan.json"), "--encoder opencv, not fpng")
+    assert_one_line_error(result, str(interrupted_build / ".parts" / "plan.json"),
+                          f"--encoder {DEFAULT_ENCODER}, not fpng")
     assert tree_digest(interrupted_build) == before
 
 
@@ -137,9 +220,24 @@ def test_verify_leaves_the_encoding_unchecked_under_another_library_version(refe
     out = tmp_path / "copy"
     shutil.copytree(reference_build, out)
     info = json.loads((out / "build.json").read_text())
-    info["libraries"]["opencv"] = "3.4.0"
+    library, here = ENCODERS[info["encoder"]].library, ENCODERS[info["encoder"]].version()
+    info["libraries"][library] = "0.0.1"
     (out / "build.json").write_text(json.dumps(info))
     report = verify(out)
-    assert report.ok and report.notes == [f"build.json records opencv 3.4.0, this machine has {cv2.__version__}: "
+    assert report.ok and report.notes == [f"build.json records {library} 0.0.1, this machine has {here}: "
                                           f"the images' encoding is unchecked (their sha256 is)"]
     assert verify(reference_build).ok and verify(reference_build).notes == []
+
+
+def test_default_build_writes_libdeflates_bytes_and_opencv_keeps_todays(setup: Setup, tmp_path: Path) -> None:
+    installed("libdeflate")
+    default, opencv = tmp_path / "default", tmp_path / "opencv"
+    assert run_cli(setup.args(default)).exit_code == 0
+    assert run_cli(setup.args(opencv, "--encoder", "opencv")).exit_code == 0
+    infos = [json.loads((out / "build.json").read_text()) for out in (default, opencv)]
+    assert [i["encoder"] for i in infos] == ["libdeflate", "opencv"]
+    assert infos[0]["libraries"]["deflate"] == ENCODERS["libdeflate"].version() and verify(default).ok
+    # The same samples (labels, pixels) whatever the encoder; only the PNG bytes differ.
+    rows = [pd.read_parquet(out / "labels.parquet") for out in (default, opencv)]
+    assert rows[0].drop(columns="sha256").equals(rows[1].drop(columns="sha256"))
+    assert not set(rows[0]["sha256"]) & set(rows[1]["sha256"])

@@ -42,8 +42,9 @@ VERIFY_LINES = 20  # problems printed; the rest are counted
 @click.option("--format", "image_format", default="png", type=click.Choice(list(FORMATS)), show_default=True,
               help="Image encoding in the shards (png: compression level 1; npy: uint8 HxWx3 BGR, HxW grey).")
 @click.option("--encoder", default=DEFAULT_ENCODER, type=click.Choice(list(ENCODERS)), show_default=True,
-              help="PNG encoder: opencv (libpng level 1, grey and colour) or fpng (several times faster, files a "
-                   "little larger, colour only; pip install 'appdgen[fpng]'). Same bytes on any machine for each; "
+              help="PNG encoder: libdeflate (3-4x faster than OpenCV's level 1, same size, grey and colour), "
+                   "opencv (libpng level 1: the bytes of builds before --encoder) or fpng (faster still, files ~9 % "
+                   "larger, colour only; pip install 'appdgen[fpng]'). Same bytes on any machine for each; "
                    f"recorded in {BUILD_JSON}. See docs/performance.md.")
 @click.option("--shard-size", type=int, default=None,
               help="Samples per shard [default: from --samples alone, about 64 shards of 8 to 1000 samples].")

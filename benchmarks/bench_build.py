@@ -6,7 +6,7 @@ encoders = for each --encoder installed (dataset/encoders.py): ms/sample at 348x
 floor   = LANCZOS4 remap + the encoder's PNG of the same raw images at the same output size (what any generator
           pays); today's floor is remap + OpenCV's PNG level 1;
 jobs 1  = `build --jobs 1 --encoder E` samples/s, default shard size: against its own floor (target >= 0.9) and
-          today's (target >= 1.3 with fpng); the in-build share = the floor's work (decode, remap, encode, from
+          today's (target >= 1.3 with the default); the in-build share = the floor's work (decode, remap, encode, from
           the build's own stage timings) over the build's wall time (target >= 0.9);
 jobs 2  = `--jobs 2` against `--jobs 1` (target >= 1.8), with the workers' CPU seconds per sample (build.json
           timings.cpu_seconds) and the parent's, so the loss splits into more CPU per sample (memory bandwidth,
@@ -35,7 +35,7 @@ import numpy as np
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.formats import load
 from appdgen.dataset.build import BuildConfig, build
-from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS
+from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS, LEGACY_ENCODER
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
 from appdgen.sources.files import list_images
@@ -56,8 +56,8 @@ def make_raw(folder: Path, count: int) -> Calibration:
 
 
 def encoders_here() -> list[str]:
-    """The --encoder choices installed here, the default first."""
-    return [DEFAULT_ENCODER] + [n for n, e in ENCODERS.items() if n != DEFAULT_ENCODER and e.available()]
+    """The --encoder choices installed here, today's (opencv, the ratios' reference) first."""
+    return [LEGACY_ENCODER] + [n for n, e in ENCODERS.items() if n != LEGACY_ENCODER and e.available()]
 
 
 def _ms(function, items: list) -> float:
@@ -101,7 +101,7 @@ def codec_table(raw_dir: Path, calib: Calibration, rounds: int) -> None:
         for i, name in enumerate(names):
             med = {k: float(np.median([r[i][k] for r in runs])) for k in runs[0][i] if k != "exact"}
             spng = f" / {med['pyspng']:5.2f}" if "pyspng" in med else ""
-            print(f"  {size[0]}x{size[1]} {name:7s} encode {med['encode']:6.2f} ms ({base / med['encode']:4.1f} x "
+            print(f"  {size[0]}x{size[1]} {name:10s} encode {med['encode']:6.2f} ms ({base / med['encode']:4.1f} x "
                   f"opencv)  {med['bytes'] / 1e3:7.1f} kB  decode {med['opencv']:5.2f}{spng} ms  "
                   f"read back bit-identical: {all(r[i]['exact'] for r in runs)}")
 
@@ -216,17 +216,18 @@ def main() -> None:
         shards = BuildConfig(calib, "02", "kitti", tuple(list_images(str(raw))), args.samples, size).shard_count
         print(f"build {size[0]}x{size[1]}, {args.samples} samples in {shards} shards (default size), median of "
               f"{args.rounds} alternating rounds")
-        today = float(np.median([r[DEFAULT_ENCODER][0] for r in rounds]))
+        today = float(np.median([r[LEGACY_ENCODER][0] for r in rounds]))
         print(f"  today's floor (remap + opencv PNG) {today:7.1f} samples/s")
         for name in names:
             floor = float(np.median([r[name][0] for r in rounds]))
             one = float(np.median([r[name][1]["rate"] for r in rounds]))
             own = float(np.median([r[name][1]["rate"] / r[name][0] for r in rounds]))
-            vs_today = float(np.median([r[name][1]["rate"] / r[DEFAULT_ENCODER][0] for r in rounds]))
+            vs_today = float(np.median([r[name][1]["rate"] / r[LEGACY_ENCODER][0] for r in rounds]))
             inside = float(np.median([r[name][1]["inside"] for r in rounds]))
             rest = {k: 1000 * float(np.median([r[name][1]["rest"][k] for r in rounds])) / args.samples
                     for k in rounds[0][name][1]["rest"]}
-            print(f"  --encoder {name:6s} floor {floor:6.1f}/s, build --jobs 1 {one:6.1f}/s: {own:.2f} x its floor, "
+            label = f"{name} (the default)" if name == DEFAULT_ENCODER else name
+            print(f"  --encoder {label}: floor {floor:6.1f}/s, build --jobs 1 {one:6.1f}/s: {own:.2f} x its floor, "
                   f"{vs_today:.2f} x today's; in-build share {inside:.3f}")
             print("      the rest, ms/sample: " + ", ".join(f"{k} {v:.1f}" for k, v in rest.items()))
         jobs_table(raw, calib, out, args.samples, size, args.rounds)

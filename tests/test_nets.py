@@ -82,12 +82,17 @@ def test_patch_net_sees_every_pixel_through_a_stride_4_stem_and_costs_less_than_
     assert macs(net, 1392, 512) < 0.5 * macs(AppdNet(ModelConfig(348, 128)).eval(), 348, 128)
 
 
-def test_fit_model_patch_trains_and_its_checkpoint_reloads(tmp_path, capsys):
+def fit_tiny(tmp_path, capsys, model: str, batch: int) -> tuple:
+    """(run folder, fit's JSON summary) of 3 steps of `model` on 24 synthetic 128x128 samples."""
     shards = write_shards(tmp_path / "shards", n=24, size=(128, 128), per_shard=12)
     run = tmp_path / "run"
-    main(["fit", "--shards", str(shards), "--run", str(run), "--steps", "3", "--batch", "4", "--workers", "0",
-          "--val-split", "none", "--model", "patch", "--quiet"])
-    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    main(["fit", "--shards", str(shards), "--run", str(run), "--steps", "3", "--batch", str(batch), "--workers", "0",
+          "--val-split", "none", "--model", model, "--quiet"])
+    return run, json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+def test_fit_model_patch_trains_and_its_checkpoint_reloads(tmp_path, capsys):
+    run, summary = fit_tiny(tmp_path, capsys, "patch", 4)
     assert summary["step"] == 3
     ckpt = load(run / "last.pt")
     assert ckpt["config"]["model"]["arch"] == "patch" and ckpt["config"]["fit"]["model"] == "patch"
@@ -95,11 +100,7 @@ def test_fit_model_patch_trains_and_its_checkpoint_reloads(tmp_path, capsys):
 
 
 def test_fit_model_plumbline_solves_the_floor_and_evaluate_and_export_use_it(tmp_path, capsys):
-    shards = write_shards(tmp_path / "shards", n=24, size=(128, 128), per_shard=12)
-    run = tmp_path / "run"
-    main(["fit", "--shards", str(shards), "--run", str(run), "--steps", "3", "--batch", "8", "--workers", "0",
-          "--val-split", "none", "--model", "plumbline", "--quiet"])
-    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    run, summary = fit_tiny(tmp_path, capsys, "plumbline", 8)
     assert summary["step"] == 3 and summary["images"] == 24
     ckpt = load(run / "last.pt")
     assert ckpt["optimizer"] is None

@@ -17,6 +17,7 @@ import torch
 from train import checkpoint
 from train.errors import TrainError
 from train.model import AppdNet
+from train.nets import image_features
 
 #: Largest |exported − eager| accepted, in APPD % (the model's output unit).
 TOLERANCE = 1e-4
@@ -117,8 +118,7 @@ def to_json(model: torch.nn.Module, path: Path, meta: dict) -> float:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps({**floor.to_dict(), "meta": meta}, indent=1), encoding="utf-8")
     x = example(model)
-    images = (x * 255).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
-    reloaded = PlumbLine.load(path).predict(np.ascontiguousarray(i) for i in images)
+    reloaded = PlumbLine.load(path).predict_features(image_features(x))
     with torch.no_grad():
         return float(np.abs(reloaded - model(x).double().numpy()).max())
 

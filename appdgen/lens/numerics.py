@@ -19,11 +19,23 @@ SCAN_NODES = 4097
 HALF_PI = 0.5 * np.pi
 #: Inputs that are numpy's (or become numpy arrays): the projections convert them to float64, as they always did.
 _NUMPY_INPUTS = (np.ndarray, np.generic, float, int, list, tuple)
-_NUMPY = array_api_compat.array_namespace(np.empty(0))
+
+
+def _numpy_namespace() -> Any:
+    """The namespace numpy inputs run in: numpy itself where it is an array-API namespace (2.0 on: the models'
+    sqrt, where, atan … are the very functions array_api_compat.numpy re-exports), else array_api_compat's."""
+    # array_api_compat.numpy starts with `from numpy import *`, which imports numpy.testing and numpy.f2py:
+    # ~0.12 s of every build worker's and command's start, for functions numpy 2 already has under these names.
+    if hasattr(np, "isdtype"):
+        return np
+    return array_api_compat.array_namespace(np.empty(0))
+
+
+_NUMPY = _numpy_namespace()
 
 
 def namespace(*arrays: Any) -> Any:
-    """The array-API namespace of `arrays` (array_api_compat's numpy for numpy arrays, scalars and lists)."""
+    """The array-API namespace of `arrays` (_numpy_namespace() for numpy arrays, scalars and lists)."""
     for a in arrays:  # a loop, not all(…): the crop's hot loop asks ~30 times per draw
         if not isinstance(a, _NUMPY_INPUTS):
             return array_api_compat.array_namespace(*arrays)

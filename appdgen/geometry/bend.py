@@ -13,6 +13,7 @@ only, never on the build's output size, and costs well under a millisecond for t
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,25 +92,48 @@ class WarpField:
         return float(np.hypot(*self.moved.T).mean())
 
 
+@dataclass(frozen=True)
+class _ReferenceGrid:
+    """What a split needs of the reference alone (computed once per reference, crop and grid): the grid (u, v),
+    the affine fit's design matrix, K̂* and M̂* at the grid (raw px)."""
+
+    u: np.ndarray
+    v: np.ndarray
+    design: np.ndarray
+    k: np.ndarray
+    raw_u: np.ndarray
+    raw_v: np.ndarray
+
+
+@functools.lru_cache(maxsize=8)
+def _reference_grid(reference: Calibration, reference_crop: Crop, columns: int) -> _ReferenceGrid:
+    """_ReferenceGrid of a reference rectification (cached: a build splits every sample against one reference)."""
+    u, v = grid(reference, columns)
+    raw_u, raw_v = _raw(reference, *_normalized(reference_crop, reference, u, v))
+    for a in (u, v, raw_u, raw_v):
+        a.flags.writeable = False  # shared by every split of this reference
+    design = np.column_stack([np.ones_like(u), u, v])
+    design.flags.writeable = False
+    return _ReferenceGrid(u, v, design, reference_crop.camera_matrix(reference.size), raw_u, raw_v)
+
+
 def _split(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop, columns: int
            ) -> tuple[WarpField, np.ndarray, np.ndarray]:
     """The field on the grid and the affine fit's coefficients (u and v: t, a_u, a_v in reference output pixels)."""
     if reference.size != sample.size:
         raise ValueError(f"calibrations differ in raw size: {reference.size} vs {sample.size}")
-    u, v = grid(reference, columns)
+    ref = _reference_grid(reference, reference_crop, columns)
+    u, v, design, k = ref.u, ref.v, ref.design, ref.k
     raw_u, raw_v = _raw(sample, *_normalized(sample_crop, sample, u, v))  # M̂m(p)
     x, y = undistort_pixels(raw_u, raw_v, reference)
-    k = reference_crop.camera_matrix(reference.size)
     wu, wv = k[0, 0] * x + k[0, 2], k[1, 1] * y + k[1, 2]  # W(p), reference output pixels
-    design = np.column_stack([np.ones_like(u), u, v])
     coef_u, coef_v = (np.linalg.lstsq(design, w, rcond=None)[0] for w in (wu, wv))
     ru, rv = wu - design @ coef_u, wv - design @ coef_v
     # J*(W(p)) = diag(fx, fy)·∂distort/∂(x, y)·K̂*⁻¹: raw pixels per reference output pixel where the ray lands.
     j11, j12, j21, j22 = distortion_jacobian(x, y, reference)
     sx, sy = reference.fx / k[0, 0], reference.fy / k[1, 1]
     rest = np.column_stack([sx * (j11 * ru + j12 * rv), sy * (j21 * ru + j22 * rv)])
-    ref_u, ref_v = _raw(reference, *_normalized(reference_crop, reference, u, v))  # M̂*(p)
-    moved = np.column_stack([raw_u - ref_u, raw_v - ref_v])
+    moved = np.column_stack([raw_u - ref.raw_u, raw_v - ref.raw_v])  # M̂m(p) − M̂*(p)
     return WarpField(moved, rest, columns, len(u) // columns), coef_u, coef_v
 
 

@@ -19,7 +19,7 @@ import pytest
 from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS, get_encoder, png_file, sub_filtered_rows
 from appdgen.dataset.verify import verify
 from appdgen.errors import AppdgenError
-from helpers import Setup, assert_one_line_error, run_cli, tree_digest
+from helpers import Setup, assert_one_line_error, run_cli, run_with_full_disk, tree_digest
 
 #: sha256 of fixed_image() encoded by each encoder (its library's version decides them: opencv 4.x's libpng and
 #: zlib, fpng 0.1.0, deflate 0.9.0's libdeflate). A change here changes every build's bytes: bump only on purpose,
@@ -203,6 +203,19 @@ def test_resume_with_another_encoder_is_refused_naming_the_plan(setup: Setup, in
     assert_one_line_error(result, str(interrupted_build / ".parts" / "plan.json"),
                           f"--encoder {DEFAULT_ENCODER}, not fpng")
     assert tree_digest(interrupted_build) == before
+
+
+def test_resume_without_encoder_goes_on_with_the_plans(setup: Setup, tmp_path: Path) -> None:
+    # An interrupted --encoder opencv build, resumed as `--resume` alone (today's default is another encoder),
+    # finishes with OpenCV's bytes: those of the same build uninterrupted.
+    out, whole = tmp_path / "out", tmp_path / "whole"
+    assert run_with_full_disk(setup.args(out, "--encoder", "opencv"), 6).exit_code == 2
+    result = run_cli(setup.args(out, "--resume"))
+    assert result.exit_code == 0, result.output
+    assert run_cli(setup.args(whole, "--encoder", "opencv")).exit_code == 0
+    assert json.loads((out / "build.json").read_text())["encoder"] == "opencv"
+    tars = {p.name: p.read_bytes() for p in sorted(out.glob("*.tar"))}
+    assert tars and tars == {p.name: p.read_bytes() for p in sorted(whole.glob("*.tar"))}
 
 
 def test_fpng_refuses_grey_and_non_png_builds(setup: Setup, tmp_path: Path) -> None:

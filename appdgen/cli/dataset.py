@@ -41,11 +41,12 @@ VERIFY_LINES = 20  # problems printed; the rest are counted
 @size_option
 @click.option("--format", "image_format", default="png", type=click.Choice(list(FORMATS)), show_default=True,
               help="Image encoding in the shards (png: compression level 1; npy: uint8 HxWx3 BGR, HxW grey).")
-@click.option("--encoder", default=DEFAULT_ENCODER, type=click.Choice(list(ENCODERS)), show_default=True,
+@click.option("--encoder", default=None, type=click.Choice(list(ENCODERS)),
               help="PNG encoder: libdeflate (3-4x faster than OpenCV's level 1, same size, grey and colour), "
                    "opencv (libpng level 1: the bytes of builds before --encoder) or fpng (faster still, files ~9 % "
                    "larger, colour only; pip install 'appdgen[fpng]'). Same bytes on any machine for each; "
-                   f"recorded in {BUILD_JSON}. See docs/performance.md.")
+                   f"recorded in {BUILD_JSON}. See docs/performance.md. [default: {DEFAULT_ENCODER}; with "
+                   "--resume, the interrupted build's]")
 @click.option("--shard-size", type=int, default=None,
               help="Samples per shard [default: from --samples alone, about 64 shards of 8 to 1000 samples].")
 @click.option("--jobs", type=int, default=None,
@@ -73,7 +74,7 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
           ranges, appd_max, zero_fraction, max_fov, interp, split_by, skip_bad, topic, every, min_interval, start, end,
           channels_choice, resume, overwrite, backend, scheduler, quiet):
     """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
-    from appdgen.dataset.build import BuildConfig, build as run_build
+    from appdgen.dataset.build import BuildConfig, build as run_build, recorded_encoder
     from appdgen.util.distribute import resolve_jobs
     from appdgen.sampling.options import SamplingOptions
     from appdgen.sources.inputs import resolve_inputs
@@ -86,6 +87,9 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     if per_image is not None and per_image < 1:
         raise AppdgenError(f"--per-image {per_image}: must be at least 1")
     workers = resolve_jobs(jobs)
+    if encoder is None:  # a resumed PNG build goes on with the encoder its plan names, whatever today's default
+        resumed = recorded_encoder(Path(out_dir)) if resume and image_format == "png" else None
+        encoder = resumed or DEFAULT_ENCODER
     inputs = resolve_inputs(images_spec, calib_path, camera, split_by, topic,
                             FrameChoice(every, min_interval, start, end), skip_bad, check_grey=channels_choice == "auto")
     reference, images, skipped = inputs.reference, inputs.images, inputs.skipped

@@ -353,6 +353,15 @@ def _frame_columns(frame: Frame) -> dict:
     return source_columns(frame.source, frame.topic, frame.timestamp_ns, frame.number)
 
 
+def recorded_encoder(out: Path) -> str | None:
+    """The --encoder the interrupted build in `out` writes (its plan's: opencv for plans from before --encoder), or
+    None where no plan can be read (prepare_out then says why)."""
+    try:
+        return plan_content(json.loads((out / PARTS_DIR / PLAN).read_text()))["encoder"]
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return None
+
+
 def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -> BuildConfig:
     """Check --out against --resume/--overwrite and record the plan; never deletes what is not ours.
 

@@ -17,6 +17,7 @@ Builds, floors and codecs alternate over --rounds and medians are printed (this 
 over a minute, and other work on it moves one measurement, not a round's ratios). Everything runs warm (a 4-sample
 build first pays the one-time imports). Raw frames: `appdgen synth` street frames at full size.
 Run: make bench   (or: python benchmarks/bench_build.py [--samples 120] [--size 1392x512] [--rounds 3] [--rss])
+     python benchmarks/bench_build.py --filters   (libdeflate's row filters and levels: why Sub at level 1)
 """
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ import numpy as np
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.formats import load
 from appdgen.dataset.build import BuildConfig, build
-from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS, LEGACY_ENCODER
+from appdgen.dataset.encoders import (DEFAULT_ENCODER, ENCODERS, LEGACY_ENCODER, LIBDEFLATE_LEVEL,
+                                      sub_filtered_rows)
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
 from appdgen.sources.files import list_images
@@ -104,6 +106,47 @@ def codec_table(raw_dir: Path, calib: Calibration, rounds: int) -> None:
             print(f"  {size[0]}x{size[1]} {name:10s} encode {med['encode']:6.2f} ms ({base / med['encode']:4.1f} x "
                   f"opencv)  {med['bytes'] / 1e3:7.1f} kB  decode {med['opencv']:5.2f}{spng} ms  "
                   f"read back bit-identical: {all(r[i]['exact'] for r in runs)}")
+
+
+def filtered_rows(image: np.ndarray, kind: str) -> np.ndarray:
+    """PNG scanlines of an 8-bit image with one filter on every row (None, Sub, Up or Average; RGB order):
+    H×(W·channels + 1) uint8, as the libdeflate encoder would hand them to zlib."""
+    if kind == "Sub":
+        return sub_filtered_rows(image)
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    rows = (cv2.cvtColor(image, cv2.COLOR_BGR2RGB) if channels == 3 else image).reshape(image.shape[0], -1)
+    above = np.vstack([np.zeros_like(rows[:1]), rows[:-1]])
+    if kind == "None":
+        body = rows
+    elif kind == "Up":
+        body = rows - above  # uint8: wraps modulo 256, as PNG's filters do
+    else:  # Average: x − floor((left + up) / 2)
+        left = np.hstack([np.zeros_like(rows[:, :channels]), rows[:, :-channels]])
+        body = rows - ((left.astype(np.uint16) + above) // 2).astype(np.uint8)
+    code = {"None": 0, "Up": 2, "Average": 3}[kind]
+    return np.hstack([np.full((rows.shape[0], 1), code, np.uint8), body])
+
+
+def filter_table(raw_dir: Path, calib: Calibration, rounds: int) -> None:
+    """libdeflate's zlib stream over each PNG row filter and level, both sizes: how LIBDEFLATE_LEVEL and the Sub
+    filter were chosen (compression ms/sample, filtering included, and kB/sample; medians over rounds)."""
+    import deflate
+
+    cv2.setNumThreads(1)
+    raws = [cv2.imread(str(p)) for p in sorted(raw_dir.glob("*.png"))]
+    print(f"libdeflate filters and levels ({len(raws)} street frames remapped per size, median of {rounds} "
+          f"rounds; the encoder writes Sub at level {LIBDEFLATE_LEVEL})")
+    choices = [("Sub", 1), ("Sub", 2), ("Sub", 3), ("None", 1), ("Up", 1), ("Average", 1)]
+    for size in SIZES:
+        rect = rectify(calib, size)
+        samples = [cv2.remap(r, rect.map_x, rect.map_y, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT_101)
+                   for r in raws]
+        runs = [[(_ms(lambda s: deflate.zlib_compress(filtered_rows(s, kind), level), samples),
+                  float(np.mean([len(deflate.zlib_compress(filtered_rows(s, kind), level)) for s in samples])))
+                 for kind, level in choices] for _ in range(rounds)]
+        for i, (kind, level) in enumerate(choices):
+            ms = float(np.median([r[i][0] for r in runs]))
+            print(f"  {size[0]}x{size[1]} {kind:7s} level {level}  {ms:6.2f} ms  {runs[0][i][1] / 1e3:7.1f} kB")
 
 
 def floor_rate(raw_dir: Path, calib: Calibration, samples: int, size: tuple[int, int], encoder: str) -> float:
@@ -196,6 +239,8 @@ def main() -> None:
                         help="codecs, floors and builds measured alternately this many times; medians are printed")
     parser.add_argument("--rss", action="store_true", help="also profile worker RSS over 10,000 samples")
     parser.add_argument("--rss-only", action="store_true", help="only profile worker RSS")
+    parser.add_argument("--filters", action="store_true",
+                        help="only compare libdeflate's PNG row filters and levels (how the encoder's were chosen)")
     args = parser.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
     print(f"load average at start: {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} "
@@ -205,6 +250,9 @@ def main() -> None:
         calib = make_raw(raw, 8)
         if args.rss_only:
             rss_profile(raw, out, 10_000)
+            return
+        if args.filters:
+            filter_table(raw, calib, args.rounds)
             return
         codec_table(raw, calib, args.rounds)
         build_rate(raw, calib, out, 4, size, 1)  # warm-up: one-time imports

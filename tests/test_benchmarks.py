@@ -29,3 +29,20 @@ def test_split_of_the_reference_is_zero_and_of_a_shift_mostly_affine():
     assert appd == 0.0 and rest < 1e-4  # float32 maps round-trip to ~1e-5 px
     appd, rest = visibility.split(ref, KITTI_02_QUARTER.perturb(cx=0.05))
     assert appd > 5 and 0 < rest < 0.3 * appd  # a principal-point change reads mostly as a shift
+
+
+def test_bench_build_filters_write_pngs_that_decode_to_the_pixels():
+    import zlib
+
+    import cv2
+
+    from appdgen.dataset.encoders import png_file
+
+    bench = load_script("bench_build")
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (9, 13, 3), dtype=np.uint8)
+    for kind in ("None", "Sub", "Up", "Average"):
+        rows = bench.filtered_rows(image, kind)
+        assert rows.shape == (9, 13 * 3 + 1) and (rows[:, 0] == {"None": 0, "Sub": 1, "Up": 2, "Average": 3}[kind]).all()
+        data = png_file(13, 9, 3, zlib.compress(rows.tobytes()))
+        assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), image), kind

@@ -218,6 +218,29 @@ def test_resume_without_encoder_goes_on_with_the_plans(setup: Setup, tmp_path: P
     assert tars and tars == {p.name: p.read_bytes() for p in sorted(whole.glob("*.tar"))}
 
 
+@pytest.mark.parametrize("recorded", ["absent", DEFAULT_ENCODER])
+def test_a_jpg_build_names_no_encoder_and_resumes_whatever_its_plan_says(setup: Setup, tmp_path: Path,
+                                                                         recorded: str) -> None:
+    # A jpg build has no PNG encoder: build.json says null. Its plan from before --encoder names none (read as
+    # opencv for PNG) and the first --encoder version's named the default: both resume.
+    out, whole = tmp_path / "out", tmp_path / "whole"
+    assert run_with_full_disk(setup.args(out, "--format", "jpg"), 6).exit_code == 2
+    plan_path = out / ".parts" / "plan.json"
+    plan = json.loads(plan_path.read_text())
+    assert plan["encoder"] is None
+    if recorded == "absent":
+        del plan["encoder"]
+    else:
+        plan["encoder"] = recorded
+    plan_path.write_text(json.dumps(plan))
+    result = run_cli(setup.args(out, "--format", "jpg", "--resume"))
+    assert result.exit_code == 0, result.output
+    assert run_cli(setup.args(whole, "--format", "jpg")).exit_code == 0
+    assert json.loads((out / "build.json").read_text())["encoder"] is None
+    tars = {p.name: p.read_bytes() for p in sorted(out.glob("*.tar"))}
+    assert tars and tars == {p.name: p.read_bytes() for p in sorted(whole.glob("*.tar"))}
+
+
 def test_fpng_refuses_grey_and_non_png_builds(setup: Setup, tmp_path: Path) -> None:
     installed("fpng")
     result = run_cli(setup.args(tmp_path / "grey", "--encoder", "fpng", "--channels", "1"))

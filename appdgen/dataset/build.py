@@ -185,7 +185,8 @@ class BuildConfig:
             "calibration": {"camera": self.camera, "sha256": file_hash(self.calib_path), **self.reference.to_dict()},
             "images_sha256": content_hash([_image_line(i) for i in self.images]), **recordings,
             "channels": self.channels,
-            "samples": self.samples, "size": list(self.size), "format": self.image_format, "encoder": self.encoder,
+            "samples": self.samples, "size": list(self.size), "format": self.image_format,
+            "encoder": self.encoder if self.image_format == "png" else None,
             "shard_size": self.shard_size, "seed": self.seed, "appd_max": self.appd_max,
             "zero_fraction": self.zero_fraction, "interp": self.interp, "max_fov": self.max_fov,
             "ranges": {name: r.describe() for name, r in self.ranges.items()},
@@ -219,7 +220,11 @@ def _image_line(image: RawImage) -> str:
 def plan_content(record: dict) -> dict:
     """The plan inside a recorded plan.json: without the names, which may differ for the same content."""
     content = {k: v for k, v in record.items() if k not in ("images", "recordings")}
+    # Plans from before --encoder name none (their PNG is OpenCV's); jpg and npy samples have no PNG encoder, though
+    # plans of the first --encoder version recorded the default for them too.
     content.setdefault("encoder", LEGACY_ENCODER)
+    if content.get("format", "png") != "png":
+        content["encoder"] = None
     calibration = record.get("calibration")
     if isinstance(calibration, dict):
         content["calibration"] = {k: v for k, v in calibration.items() if k != "path"}
@@ -380,7 +385,7 @@ def prepare_out(out: Path, config: BuildConfig, resume: bool, overwrite: bool) -
             raise AppdgenError(f"--out {out}: not an interrupted appdgen build (no {PARTS_DIR}/{PLAN})")
         record = json.loads(plan_path.read_text())
         recorded = plan_content(record)["encoder"]
-        if recorded != config.encoder:
+        if config.image_format == "png" and recorded not in (None, config.encoder):
             raise AppdgenError(f"{plan_path}: the interrupted build writes --encoder {recorded}, not "
                                f"{config.encoder}; resume it with --encoder {recorded}, or use --overwrite")
         if plan_content(record) != config.plan():

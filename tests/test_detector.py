@@ -16,7 +16,9 @@ from appdgen.geometry.appd import px_to_pct  # noqa: E402
 from appdgen.calib.defaults import default_calibration  # noqa: E402
 from appdgen.sampling.options import SamplingOptions  # noqa: E402
 from appdgen.synth import scale_calibration  # noqa: E402
-from train.detector import ARMS, FIELD_COLUMNS, auc, metrics, spearman, targets  # noqa: E402
+from helpers import raw_image  # noqa: E402
+from train.detector import (ARMS, FIELD_COLUMNS, DetectorOptions, Stream, auc, axis_pairs, metrics,  # noqa: E402
+                            spearman, targets)
 from train.cli import main  # noqa: E402
 from train.online.recipe import PairRecipe  # noqa: E402
 
@@ -69,6 +71,21 @@ def test_the_dense_targets_read_off_is_appd_and_bend():
         assert np.hypot(points[:, 0], points[:, 1]).mean() == pytest.approx(appd, rel=0.05, abs=1e-4)
         assert np.hypot(points[:, 2], points[:, 3]).mean() == pytest.approx(bend, rel=0.1, abs=1e-4)
         assert bend <= appd * 1.05 + 1e-6
+
+
+def test_the_synthetic_axes_draw_the_same_miscalibrations_one_per_sequence():
+    ref = scale_calibration(default_calibration(), 0.25)
+    scene = PairRecipe(ref, "02", ref.size, SamplingOptions.parse(ref, None, 1.0, 0.01, None, "cubic"))
+    s = Stream(scene, {name: np.stack([raw_image(ref.size, 10 * n + i) for i in range(6)])
+                       for n, name in enumerate(("train", "viewpoint", "unseen"))})
+    o = DetectorOptions(sequences=2, length=3)
+    pairs = {axis: axis_pairs(s, axis, o) for axis in ("views", "viewpoint", "unseen")}
+    for t in ("appd", "bend"):
+        # every frame of a sequence under one draw; the axes differ by their scenes only
+        labels = pairs["unseen"][t].reshape(2, 3)
+        assert (labels == labels[:, :1]).all() and labels[0, 0] != labels[1, 0]
+        assert np.array_equal(pairs["views"][t], labels.ravel()) and np.array_equal(pairs["viewpoint"][t], labels.ravel())
+    assert not np.array_equal(pairs["views"]["image"], pairs["unseen"]["image"])
 
 
 @pytest.mark.slow

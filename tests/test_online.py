@@ -237,3 +237,49 @@ def test_online_fit_on_bend_records_it_and_resume_keeps_it(frames, tmp_path, cap
         main(fit_args(frames, run, "--steps", 3, "--render", "cpu", "--resume"))  # --target appd by default
     err = capsys.readouterr().err
     assert exc.value.code == 2 and "trained on --target bend" in err and err.count("\n") == 1, err
+
+
+def test_evaluate_frames_scores_sequences_of_unseen_frames_under_one_draw_each(online_run, frames, tmp_path, capsys):
+    from train.detector import SEQUENCE_SEED
+    from train.loop import to_input
+
+    calib, images = frames
+    main(["evaluate", "--ckpt", str(online_run / "last.pt"), "--frames", str(images), "--length", "2",
+          "--sequences", "2", "--device", "cpu", "--json", str(tmp_path / "e.json")])
+    result = json.loads(capsys.readouterr().out)
+    assert result == json.loads((tmp_path / "e.json").read_text())
+    # the same numbers from the recipe's own pieces: frames in file order, sequence k under draw (SEQUENCE_SEED, k)
+    state = checkpoint.load(online_run / "last.pt")
+    recipe, listed = open_recipe(OnlineOptions(**state["config"]["fit"]["online"]))
+    raw, model = decode_frames(listed), checkpoint.build_model(state)
+    truth, pred = [], []
+    for k in range(2):
+        draw = recipe.sampler().draw(SEQUENCE_SEED, k)
+        for f in (2 * k, 2 * k + 1):
+            image = torch.from_numpy(recipe.render(raw[f], draw).transpose(2, 0, 1).copy())[None]
+            with torch.no_grad():
+                pred.append(float(model(to_input({"image": image}, torch.device("cpu")))))
+            truth.append(recipe.label(draw))
+    truth, pred, mean = np.array(truth), np.array(pred), checkpoint.label_mean(state)
+    assert result["n"] == 4 and result["sequences"]["count"] == 2
+    assert result["mae"] == pytest.approx(np.abs(pred - truth).mean(), rel=1e-4)
+    assert result["mean_predictor_mae"] == pytest.approx(np.abs(mean - truth).mean())
+    per_seq = np.abs(np.median(pred.reshape(2, 2), 1) - truth[::2]).mean() / np.abs(mean - truth[::2]).mean()
+    assert result["sequences"]["median_vs_mean_predictor"] == pytest.approx(per_seq, rel=1e-4)
+    for args, needle in (([], "--shards"), (["--frames", str(images), "--shards", str(tmp_path)], "--shards"),
+                         (["--frames", str(images), "--length", "7"], "fewer than one sequence")):
+        with pytest.raises(SystemExit):
+            main(["evaluate", "--ckpt", str(online_run / "last.pt"), "--device", "cpu", *args])
+        assert needle in capsys.readouterr().err
+
+
+def test_evaluate_frames_refuses_an_offline_checkpoint(tmp_path, capsys):
+    from train.synthetic import write_shards
+
+    shards = write_shards(tmp_path / "shards", n=8, size=(128, 128), per_shard=8)
+    main(["fit", "--shards", str(shards), "--run", str(tmp_path / "run"), "--steps", "1", "--batch", "4",
+          "--workers", "0", "--val-split", "none", "--stats-samples", "4", "--quiet"])
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--ckpt", str(tmp_path / "run" / "last.pt"), "--frames", str(tmp_path), "--device", "cpu"])
+    assert "fit --online" in capsys.readouterr().err

@@ -181,7 +181,15 @@ def experiment(tiny: bool, offline: bool, detector: bool, **kw) -> None:
 
 @cli.command()
 @click.option("--ckpt", required=True, help="Checkpoint (.pt) written by fit.")
-@click.option("--shards", required=True, help="Folder written by `appdgen build`.")
+@click.option("--shards", default=None, help="Folder written by `appdgen build`.")
+@click.option("--frames", default=None, type=click.Path(exists=True),
+              help="Instead of --shards: raw frames the fit --online checkpoint has not seen (a folder, glob or "
+                   "list, in file order), scored per frame and per sequence of --length frames under one "
+                   "fixed-seed miscalibration of the fit's calibration and sampling.")
+@click.option("--length", default=10, show_default=True, type=click.IntRange(1), help="--frames: frames a sequence.")
+@click.option("--sequences", type=click.IntRange(1), help="--frames: most sequences [default: as the frames allow].")
+@click.option("--draw-seed", type=int, help="--frames: seed of the sequences' miscalibrations [default: the "
+                                            "detector benchmark's, train.detector.SEQUENCE_SEED].")
 @click.option("--split", default="test", show_default=True)
 @click.option("--json", "json_path", help="Also write the metrics to this JSON file.")
 @click.option("--plot", "plot_path", help="Predicted-vs-true APPD plot (PNG; needs matplotlib).")
@@ -190,12 +198,22 @@ def experiment(tiny: bool, offline: bool, detector: bool, **kw) -> None:
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(0))
 @DEVICE
 @click.option("--precision", default="fp32", show_default=True, type=click.Choice(["auto", "fp32", "bf16"]))
-def evaluate(ckpt: str, shards: str, split: str, json_path: str | None, plot_path: str | None, threshold: float,
+def evaluate(ckpt: str, shards: str | None, frames: str | None, length: int, sequences: int | None,
+             draw_seed: int | None, split: str, json_path: str | None, plot_path: str | None, threshold: float,
              batch: int, workers: int, device: str, precision: str) -> None:
-    """MAE, RMSE, mean-predictor MAE, per-bin MAE and P/R/F1 of a checkpoint on one split (JSON)."""
-    from train.evaluate import evaluate as run_eval
+    """MAE, RMSE, mean-predictor MAE, per-bin MAE and P/R/F1 of a checkpoint on one split (JSON); with --frames,
+    on sequences of unseen raw frames, per frame and per sequence."""
+    from train.evaluate import evaluate as run_eval, evaluate_frames
 
-    result = run_eval(ckpt, shards, split, json_path, plot_path, threshold, batch, workers, device, precision)
+    if (shards is None) == (frames is None):
+        raise TrainError("give --shards (a build and its --split) or --frames (raw frames of a fit --online run)")
+    if frames is not None:
+        if plot_path:
+            raise TrainError("--plot needs --shards")
+        result = evaluate_frames(ckpt, frames, length, sequences, draw_seed, json_path, threshold, batch, device,
+                                 precision)
+    else:
+        result = run_eval(ckpt, shards, split, json_path, plot_path, threshold, batch, workers, device, precision)
     click.echo(json.dumps(result, indent=1))
     click.echo(summary_line(result), err=True)
 
@@ -204,9 +222,15 @@ def summary_line(result: dict) -> str:
     """'split: MAE … vs mean predictor … (ratio …)' in % of the diagonal, for a human reading the run."""
     ratio = result["mae_vs_mean_predictor"]
     target = "" if result["target"] == "appd" else f" ({result['label']})"
-    return (f"evaluate: {result['split']}{target} MAE {result['mae']:.3f} % vs mean-predictor MAE "
+    line = (f"evaluate: {result['split']}{target} MAE {result['mae']:.3f} % vs mean-predictor MAE "
             f"{result['mean_predictor_mae']:.3f} % (ratio {'n/a' if ratio is None else f'{ratio:.2f}'}) "
             f"on {result['n']} images")
+    seq = result.get("sequences")
+    if seq:  # evaluate --frames
+        line += (f"; per sequence of {seq['length']} (one miscalibration, {seq['count']} sequences): mean "
+                 f"prediction {seq['mean_vs_mean_predictor']:.2f}, median {seq['median_vs_mean_predictor']:.2f} "
+                 f"× the mean predictor's MAE")
+    return line
 
 
 @cli.command()

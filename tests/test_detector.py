@@ -18,7 +18,7 @@ from appdgen.sampling.options import SamplingOptions  # noqa: E402
 from appdgen.synth import scale_calibration  # noqa: E402
 from helpers import raw_image  # noqa: E402
 from train.detector import (ARMS, FIELD_COLUMNS, DetectorOptions, Stream, auc, axis_pairs, metrics,  # noqa: E402
-                            spearman, targets)
+                            real_frames, spearman, targets, tune_frames)
 from train.cli import main  # noqa: E402
 from train.online.recipe import PairRecipe  # noqa: E402
 
@@ -86,6 +86,17 @@ def test_the_synthetic_axes_draw_the_same_miscalibrations_one_per_sequence():
         assert (labels == labels[:, :1]).all() and labels[0, 0] != labels[1, 0]
         assert np.array_equal(pairs["views"][t], labels.ravel()) and np.array_equal(pairs["viewpoint"][t], labels.ravel())
     assert not np.array_equal(pairs["views"]["image"], pairs["unseen"]["image"])
+
+
+def test_the_finetune_frames_come_first_and_never_reach_the_real_axis(tmp_path):
+    names = [f"{1403715273262142976 + 50_000_000 * i}.png" for i in range(25)]  # time stamps, recording order
+    for name in reversed(names):
+        (tmp_path / name).write_bytes(b"")
+    o = DetectorOptions(real=str(tmp_path), length=10, sequences=9, finetune=5)
+    assert [p.name for p in tune_frames(o)] == names[:5]
+    assert [p.name for p in real_frames(o)] == names[5:]  # two whole sequences of the 20 left
+    untuned = DetectorOptions(real=str(tmp_path), length=10, sequences=9)
+    assert tune_frames(untuned) == [] and [p.name for p in real_frames(untuned)] == names[:20]
 
 
 @pytest.mark.slow

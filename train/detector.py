@@ -43,6 +43,8 @@ SEQUENCE_SEED = 7003
 #: Draw seeds of the test axes (fixed: every run tests on the same miscalibrations), and the recalibration pairs'.
 AXIS_SEEDS = {"views": SEQUENCE_SEED, "viewpoint": SEQUENCE_SEED, "unseen": SEQUENCE_SEED, "real": 7004}
 RECAL_SEED = 7005
+#: Draw seed of the pairs of the first real frames the floor is fine-tuned on (--finetune).
+TUNE_SEED = 7006
 #: Synth seed offsets: the training streets and the unseen ones.
 TRAIN_SYNTH, TEST_SYNTH = 101, 202
 THRESHOLD = 0.5  # % APPD: the detection threshold whose AUC is reported
@@ -88,6 +90,7 @@ class DetectorOptions:
     stats: int = 128  # first images of the run: input normalisation and target standardisation
     recal: int = 256  # fresh training pairs after training: each network's least-squares output line
     floor_images: int = 300
+    finetune: int = 0  # first real frames whose pairs (floor_images of them) join the floor's fit; the real axis starts after them
     seed: int = 0
     device: str = "cpu"
     jobs: int = 2
@@ -146,12 +149,22 @@ def load_frames(paths: list[Path], grey: bool, scale: float = 1.0) -> np.ndarray
     return np.stack(out)
 
 
-def real_frames(o: DetectorOptions) -> list[Path]:
-    """The real axis's frames in recording order (file names sort by time stamp), S·L of them at most."""
+def recording(o: DetectorOptions) -> list[Path]:
+    """The real frames in recording order (file names sort by time stamp); [] without --real."""
     if not o.real or not Path(o.real).is_dir():
         return []
-    found = sorted(Path(o.real).rglob("*.png"))
+    return sorted(Path(o.real).rglob("*.png"))
+
+
+def real_frames(o: DetectorOptions) -> list[Path]:
+    """The real axis's frames: those after the --finetune ones, whole sequences, S·L of them at most."""
+    found = recording(o)[o.finetune:]
     return found[: (len(found) // o.length) * o.length][: o.sequences * o.length]
+
+
+def tune_frames(o: DetectorOptions) -> list[Path]:
+    """The first --finetune real frames: the floor's real training frames, never tested on."""
+    return recording(o)[:o.finetune]
 
 
 # --- pairs and targets ----------------------------------------------------------------------------------
@@ -180,9 +193,9 @@ def open_stream(o: DetectorOptions, stream: str) -> Stream:
     raw = Path(o.out) / "raw" / stream
     for folder in ("train", "viewpoint", "unseen"):
         s.frames[folder] = load_frames(sorted((raw / folder).glob("frame_*.png")), o.grey)
-    real = real_frames(o)
-    if real:
-        s.frames["real"] = load_frames(real, True, scale)
+    for folder, paths in (("real", real_frames(o)), ("tune", tune_frames(o))):
+        if paths:
+            s.frames[folder] = load_frames(paths, True, scale)
     return s
 
 
@@ -315,23 +328,35 @@ class Network:
 
 
 def floor_arms(arms: list[Arm], s: Stream, o: DetectorOptions, tests: dict[str, dict]) -> dict:
-    """The plumb-line floor's predictions per axis and target (ridge fit on the first training pairs); {} when
+    """The plumb-line floor's predictions per axis and target (ridge fit on the first training pairs) and, with
+    --finetune, the same fit with pairs of the first real frames added (arm plumbline+realN); {} when
     train.plumbline is missing."""
     try:
-        from train.plumbline import PlumbLine
+        from train.plumbline import PlumbLine, feature_matrix
     except ImportError:
         print("detector: train.plumbline not found; the floor arms are skipped", file=sys.stderr)
         return {}
+    def features(pairs: dict) -> np.ndarray:
+        """Line features of every pair's image (computed once, shared by both targets and every fit)."""
+        return feature_matrix(pairs["image"].transpose(0, 2, 3, 1))
+
     start = time.process_time()
     pairs = train_pairs(s, o.seed, 0, o.floor_images)
-    images = list(pairs["image"].transpose(0, 2, 3, 1))
+    fits = [("plumbline", features(pairs), pairs)]
+    if "tune" in s.frames:
+        n = len(s.frames["tune"])
+        tune = make_pairs(s.scene, s.frames["tune"], [(TUNE_SEED, i) for i in range(o.floor_images)],
+                          [i % n for i in range(o.floor_images)])
+        fits.append((f"plumbline+real{n}", np.vstack([fits[0][1], features(tune)]),
+                     {t: np.concatenate([pairs[t], tune[t]]) for t in ("appd", "bend")}))
+    tested = {axis: features(t) for axis, t in tests.items()}
     out = {}
     for arm in arms:
-        floor = PlumbLine()
-        floor.fit(images, pairs[arm.target])
-        out[arm.name] = {"label_mean": float(pairs[arm.target].mean()), "predictions": {
-            axis: {arm.target: [float(v) for v in floor.predict(list(t["image"].transpose(0, 2, 3, 1)))]}
-            for axis, t in tests.items()}, "cpu_s": time.process_time() - start}
+        for model, x, labels in fits:
+            floor = PlumbLine().fit_features(x, labels[arm.target])
+            out[f"{model}/{arm.target}"] = {"label_mean": float(labels[arm.target].mean()), "predictions": {
+                axis: {arm.target: floor.predict_features(z).tolist()} for axis, z in tested.items()},
+                "cpu_s": time.process_time() - start}
     return out
 
 

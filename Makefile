@@ -64,7 +64,7 @@ $(FLOOR_TRAIN)/calibration.yaml: | $(STAMP)
 
 $(FLOOR_UNSEEN)/calibration.yaml: | $(STAMP)
 	rm -rf $(FLOOR_UNSEEN)
-	$(APPDGEN) synth --frames 160 --seed 202 --out $(FLOOR_UNSEEN) --quiet
+	$(APPDGEN) synth --frames 320 --seed 202 --out $(FLOOR_UNSEEN) --quiet
 
 train: $(TRAIN_STAMP) $(FLOOR_TRAIN)/calibration.yaml $(FLOOR_UNSEEN)/calibration.yaml
 	for t in appd bend; do \

@@ -15,10 +15,11 @@ torch = pytest.importorskip("torch")
 from appdgen.geometry.appd import px_to_pct  # noqa: E402
 from appdgen.calib.defaults import default_calibration  # noqa: E402
 from appdgen.sampling.options import SamplingOptions  # noqa: E402
+from appdgen.sampling.sampler import target_px  # noqa: E402
 from appdgen.synth import scale_calibration  # noqa: E402
 from helpers import raw_image  # noqa: E402
-from train.detector import (ARMS, FIELD_COLUMNS, DetectorOptions, Stream, auc, axis_pairs, metrics,  # noqa: E402
-                            real_frames, spearman, targets, tune_frames)
+from train.detector import (ARMS, FIELD_COLUMNS, TUNE_SEED, Arm, DetectorOptions, Stream, auc, axis_pairs,  # noqa: E402
+                            floor_arms, metrics, real_frames, spearman, targets, tune_frames)
 from train.cli import main  # noqa: E402
 from train.online.recipe import PairRecipe  # noqa: E402
 
@@ -97,6 +98,24 @@ def test_the_finetune_frames_come_first_and_never_reach_the_real_axis(tmp_path):
     assert [p.name for p in real_frames(o)] == names[5:]  # two whole sequences of the 20 left
     untuned = DetectorOptions(real=str(tmp_path), length=10, sequences=9)
     assert tune_frames(untuned) == [] and [p.name for p in real_frames(untuned)] == names[:20]
+
+
+def test_the_finetuned_floor_fits_on_the_synthetic_and_the_real_pairs_and_is_tested_beside_the_sim_only_one():
+    ref = scale_calibration(default_calibration(), 0.25)
+    scene = PairRecipe(ref, "02", ref.size, SamplingOptions.parse(ref, None, 1.0, 0.01, None, "cubic"))
+    s = Stream(scene, {"train": np.stack([raw_image(ref.size, i) for i in range(4)]),
+                       "unseen": np.stack([raw_image(ref.size, 50 + i) for i in range(4)]),
+                       "tune": np.stack([raw_image(ref.size, 90 + i) for i in range(2)])})
+    o = DetectorOptions(sequences=2, length=2, floor_images=6)
+    tests = {"unseen": axis_pairs(s, "unseen", o)}
+    out = floor_arms([Arm("plumbline", "bend", "full")], s, o, tests)
+    assert set(out) == {"plumbline/bend", "plumbline+real2/bend"}
+    sampler = scene.sampler()
+    bend = lambda seed, i: px_to_pct(target_px(sampler, sampler.draw(seed, i), "bend"), ref)  # noqa: E731
+    synthetic, real = [bend(o.seed, i) for i in range(6)], [bend(TUNE_SEED, i) for i in range(6)]
+    assert out["plumbline/bend"]["label_mean"] == pytest.approx(np.mean(synthetic))
+    assert out["plumbline+real2/bend"]["label_mean"] == pytest.approx(np.mean(synthetic + real))
+    assert all(len(a["predictions"]["unseen"]["bend"]) == 4 for a in out.values())
 
 
 @pytest.mark.slow

@@ -52,8 +52,9 @@ test-heavy: $(TRAIN_STAMP)
 # mean predictor: the bend it reads is below a pixel there), once on appd and once on bend; each scored on unseen
 # streets per frame and per sequence (10 frames under one miscalibration). The frames are made once (their
 # calibration file is written last); the streets and draws are the detector benchmark's unseen axis. The fit's
-# 300 pairs are also its --stats-samples: the mean predictor it is scored against is their label mean. ~4 min on
-# 2 cores; 1,200 pairs gained 0.01-0.02 of the ratios, inside their standard error, for 4x the fitting time.
+# 300 pairs are also its --stats-samples: the mean predictor it is scored against is their label mean. 32 unseen
+# sequences: the first 16 miscalibrations alone flatter the floor (docs/training.md). ~5 min on 2 cores; 1,200
+# pairs gained 0.01-0.03 of the ratios, inside their standard error, for 4x the fitting time.
 FLOOR := runs/train
 FLOOR_TRAIN := $(FLOOR)/raw/train
 FLOOR_UNSEEN := $(FLOOR)/raw/unseen

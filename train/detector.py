@@ -11,7 +11,8 @@ i (train.online.pairs: draw(seed, i) of the build sampler, frame frame_of(seed, 
 each arm in turn; the low and full streams draw with the same seeds from the same synthetic streets (synth frame i
 depends on (seed, i) only, at any scale). The number of training images is fixed, not the minutes.
 
-Axes (each S sequences of L frames, one fixed-seed miscalibration per sequence): `views`, the training frames
+Axes (each S sequences of L frames, one fixed-seed miscalibration per sequence, the same S on every synthetic
+axis): `views`, the training frames
 under other miscalibrations (memorisation); `viewpoint`, the training streets from a camera moved sideways
 (appdgen synth --offset); `unseen`, streets of another seed; `real`, real frames in recording order (given).
 """

@@ -182,7 +182,7 @@ def experiment(tiny: bool, offline: bool, detector: bool, **kw) -> None:
 @cli.command()
 @click.option("--ckpt", required=True, help="Checkpoint (.pt) written by fit.")
 @click.option("--shards", default=None, help="Folder written by `appdgen build`.")
-@click.option("--frames", default=None, type=click.Path(exists=True),
+@click.option("--frames", default=None,
               help="Instead of --shards: raw frames the fit --online checkpoint has not seen (a folder, glob or "
                    "list, in file order), scored per frame and per sequence of --length frames under one "
                    "fixed-seed miscalibration of the fit's calibration and sampling.")

@@ -85,7 +85,8 @@ def test_the_synthetic_axes_draw_the_same_miscalibrations_one_per_sequence():
         # every frame of a sequence under one draw; the axes differ by their scenes only
         labels = pairs["unseen"][t].reshape(2, 3)
         assert (labels == labels[:, :1]).all() and labels[0, 0] != labels[1, 0]
-        assert np.array_equal(pairs["views"][t], labels.ravel()) and np.array_equal(pairs["viewpoint"][t], labels.ravel())
+        for axis in ("views", "viewpoint"):
+            assert np.array_equal(pairs[axis][t], labels.ravel())
     assert not np.array_equal(pairs["views"]["image"], pairs["unseen"]["image"])
 
 

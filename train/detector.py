@@ -12,9 +12,9 @@ each arm in turn; the low and full streams draw with the same seeds from the sam
 depends on (seed, i) only, at any scale). The number of training images is fixed, not the minutes.
 
 Axes (each S sequences of L frames, one fixed-seed miscalibration per sequence, the same S on every synthetic
-axis): `views`, the training frames
-under other miscalibrations (memorisation); `viewpoint`, the training streets from a camera moved sideways
-(appdgen synth --offset); `unseen`, streets of another seed; `real`, real frames in recording order (given).
+axis): `views`, the training frames under other miscalibrations (memorisation); `viewpoint`, the training streets
+from a camera moved sideways (appdgen synth --offset); `unseen`, streets of another seed; `real`, real frames in
+recording order (given; with --finetune N, after the first N, whose pairs join the floor's fit).
 """
 from __future__ import annotations
 
@@ -91,7 +91,7 @@ class DetectorOptions:
     stats: int = 128  # first images of the run: input normalisation and target standardisation
     recal: int = 256  # fresh training pairs after training: each network's least-squares output line
     floor_images: int = 300
-    finetune: int = 0  # first real frames whose pairs (floor_images of them) join the floor's fit; the real axis starts after them
+    finetune: int = 0  # first real frames: floor_images pairs of them join the floor's fit, the real axis follows
     seed: int = 0
     device: str = "cpu"
     jobs: int = 2
@@ -337,6 +337,7 @@ def floor_arms(arms: list[Arm], s: Stream, o: DetectorOptions, tests: dict[str, 
     except ImportError:
         print("detector: train.plumbline not found; the floor arms are skipped", file=sys.stderr)
         return {}
+
     def features(pairs: dict) -> np.ndarray:
         """Line features of every pair's image (computed once, shared by both targets and every fit)."""
         return feature_matrix(pairs["image"].transpose(0, 2, 3, 1))

@@ -149,39 +149,49 @@ def evaluate(ckpt_path: str, shards: str, split: str, json_path: str | None = No
     return result
 
 
+def frames_recipe(ckpt: dict, ckpt_path: str, frames: str):
+    """(the fit --online run's PairRecipe, the listed raw frames) with `frames` for its images: the same
+    calibration, output size, sampling and target as the fit drew its pairs with."""
+    from train.online.options import OnlineOptions
+    from train.online.recipe import open_recipe
+
+    online = ckpt["config"].get("fit", {}).get("online")
+    if not online:
+        raise TrainError(f"{ckpt_path}: --frames needs a checkpoint of fit --online (it renders the test pairs with "
+                         "that fit's calibration and sampling); evaluate a --shards fit with --shards")
+    return open_recipe(OnlineOptions(**{**online, "images": frames, "split_by": "none", "val_shards": None}),
+                       checkpoint.target(ckpt))
+
+
 def evaluate_frames(ckpt_path: str, frames: str, length: int = 10, sequences: int | None = None,
                     draw_seed: int | None = None, json_path: str | None = None, threshold: float = 1.0,
                     batch: int = 32, device: str = "auto", precision: str = "fp32") -> dict:
     """Score a fit --online checkpoint on raw frames it has not seen, per frame and per sequence: sequence k is
-    frames k·length … k·length + length − 1 (in file order) under one miscalibration, fixed-seed draw (draw_seed, k)
-    of the fit's own calibration and sampling (train.detector.sequence_pairs, as the detector benchmark's axes);
-    the sequence's mean and median prediction are scored against its label (ratios to the mean predictor's MAE)."""
+    frames k·length … k·length + length − 1 (in file order) under one miscalibration, the fixed-seed draw
+    (draw_seed, k) of the fit's own calibration and sampling (train.detector.sequence_pairs, as the detector
+    benchmark's axes); the sequence's mean and median prediction are scored against its label (ratios to the mean
+    predictor's MAE)."""
     from train.detector import SEQUENCE_SEED, THRESHOLD as DETECTION_THRESHOLD, metrics as sequence_metrics
     from train.detector import sequence_pairs
-    from train.online.options import OnlineOptions
-    from train.online.recipe import decode_frames, open_recipe
+    from train.online.recipe import decode_frames
 
     if length < 1:
         raise TrainError(f"--length {length}: must be at least 1")
     dev = runtime.pick_device(device)
     runtime.setup_threads(dev)
     ckpt = checkpoint.load(ckpt_path)
-    online = ckpt["config"].get("fit", {}).get("online")
-    if not online:
-        raise TrainError(f"{ckpt_path}: --frames needs a checkpoint of fit --online (it renders the test pairs with "
-                         "that fit's calibration and sampling); evaluate a --shards fit with --shards")
     target = checkpoint.target(ckpt)
-    o = OnlineOptions(**{**online, "images": frames, "split_by": "none", "val_shards": None})
-    recipe, images = open_recipe(o, target)
+    recipe, images = frames_recipe(ckpt, ckpt_path, frames)
     raw = decode_frames(images)
     if len(raw) < length:
         raise TrainError(f"{frames}: {len(raw)} frames, fewer than one sequence of --length {length}")
     seed = SEQUENCE_SEED if draw_seed is None else draw_seed
     pairs = sequence_pairs(recipe, raw, seed, sequences or len(raw), length)
     model = checkpoint.build_model(ckpt).to(dev).to(memory_format=torch.channels_last)
-    batches = ({"image": torch.from_numpy(pairs["image"][i:i + batch]), "label": torch.from_numpy(pairs[target][i:i + batch]),
-                "key": [str(k) for k in range(i, min(i + batch, len(pairs[target])))]}
-               for i in range(0, len(pairs[target]), batch))
+    n = len(pairs[target])
+    cut = [slice(i, min(i + batch, n)) for i in range(0, n, batch)]
+    batches = ({"image": torch.from_numpy(pairs["image"][c]), "label": torch.from_numpy(pairs[target][c]),
+                "key": list(map(str, range(c.start, c.stop)))} for c in cut)
     _, y_true, y_pred = predict_split(model, batches, dev, runtime.autocast_dtype(dev, precision))
     mean = checkpoint.label_mean(ckpt)
     appd_max = ckpt["config"].get("appd_max") or float(max(y_true.max(), 1e-6))

@@ -77,9 +77,10 @@ train: $(TRAIN_STAMP) $(FLOOR_TRAIN)/calibration.yaml $(FLOOR_UNSEEN)/calibratio
 			--json $(FLOOR)/$$t/eval.json > /dev/null || exit 1; \
 	done
 	@for t in appd bend; do $(PY) -c "import json, sys; d = json.load(open(sys.argv[1])); s = d['sequences']; \
-		print('make train, %s: on unseen streets MAE / the mean predictor%ss %.2f per frame, %.2f per sequence of %d \
-		frames (median; %d sequences); details in %s' % (sys.argv[2], chr(39), d['mae_vs_mean_predictor'], \
-		s['median_vs_mean_predictor'], s['length'], s['count'], sys.argv[1]))" $(FLOOR)/$$t/eval.json $$t; done
+		line = 'make train, %s: on unseen streets MAE / the mean predictor%ss %.2f per frame, '; \
+		line += '%.2f per sequence of %d frames (median; %d sequences); details in %s'; \
+		print(line % (sys.argv[2], chr(39), d['mae_vs_mean_predictor'], s['median_vs_mean_predictor'], \
+		s['length'], s['count'], sys.argv[1]))" $(FLOOR)/$$t/eval.json $$t; done
 
 # The paper's CNN on the demo shards (the recipe make train had until the detector comparison): within 15 minutes on
 # 2 CPU cores (--max-minutes stops early, still validated and checkpointed); it stays at the mean predictor.

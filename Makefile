@@ -121,7 +121,7 @@ paper-scale-detector: $(TRAIN_STAMP)
 
 # The same comparison on 2 CPU cores (the table in docs/training.md), and its few-minute smoke run.
 detector: $(TRAIN_STAMP)
-	nice -n 10 $(PY) benchmarks/detector.py --images 6000 --frames 300 --sequences 16 --out runs/detector $(ARGS)
+	nice -n 10 $(PY) benchmarks/detector.py --images 6000 --frames 300 --sequences 32 --out runs/detector $(ARGS)
 
 detector-tiny: $(TRAIN_STAMP)
 	$(PY) benchmarks/detector.py --tiny --out runs/detector-tiny $(ARGS)

@@ -86,8 +86,10 @@ def metrics(y_true: np.ndarray, y_pred: np.ndarray, label_mean: float, appd_max:
     }
 
 
-def plot(y_true: np.ndarray, y_pred: np.ndarray, appd_max: float, threshold: float, path: Path, title: str) -> bool:
-    """Box plots of predictions per true-APPD bin vs the identity line; False when matplotlib is absent."""
+def plot(y_true: np.ndarray, y_pred: np.ndarray, appd_max: float, threshold: float, path: Path, title: str,
+         quantity: str = "APPD") -> bool:
+    """Box plots of predictions per bin of the true label (`quantity`: APPD, or the target fit learnt) vs the
+    identity line; False when matplotlib is absent."""
     try:
         import matplotlib
 
@@ -106,8 +108,8 @@ def plot(y_true: np.ndarray, y_pred: np.ndarray, appd_max: float, threshold: flo
                showfliers=True, flierprops={"markersize": 2})
     ax.plot([0, appd_max], [0, appd_max], "--", color="tab:green", label="ideal")
     ax.axhline(threshold, color="tab:red", lw=0.8, label=f"threshold {threshold:g}%")
-    ax.set(xlabel="true APPD (% of diagonal), binned", ylabel="predicted APPD (% of diagonal)", title=title,
-           xlim=(0, appd_max))
+    ax.set(xlabel=f"true {quantity} (% of diagonal), binned", ylabel=f"predicted {quantity} (% of diagonal)",
+           title=title, xlim=(0, appd_max))
     ax.legend(loc="upper left")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -145,7 +147,9 @@ def evaluate(ckpt_path: str, shards: str, split: str, json_path: str | None = No
         Path(json_path).write_text(json.dumps(result, indent=1))
     if plot_path:
         title = f"{split}: MAE {result['mae']:.3f}% (mean predictor {result['mean_predictor_mae']:.3f}%)"
-        result["plot"] = str(plot_path) if plot(y_true, y_pred, appd_max, threshold, Path(plot_path), title) else None
+        quantity = "APPD" if target == "appd" else target
+        drawn = plot(y_true, y_pred, appd_max, threshold, Path(plot_path), title, quantity)
+        result["plot"] = str(plot_path) if drawn else None
     return result
 
 

@@ -118,6 +118,12 @@ def plot(y_true: np.ndarray, y_pred: np.ndarray, appd_max: float, threshold: flo
     return True
 
 
+def write_json(path: str, result: dict) -> None:
+    """An evaluation's metrics as a JSON file (its folder made when missing)."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(result, indent=1))
+
+
 def evaluate(ckpt_path: str, shards: str, split: str, json_path: str | None = None, plot_path: str | None = None,
              threshold: float = 1.0, batch: int = 64, workers: int = 1, device: str = "auto",
              precision: str = "fp32") -> dict:
@@ -143,8 +149,7 @@ def evaluate(ckpt_path: str, shards: str, split: str, json_path: str | None = No
               "label": TARGETS[target],
               **metrics(y_true, y_pred, checkpoint.label_mean(ckpt), appd_max, threshold)}
     if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(result, indent=1))
+        write_json(json_path, result)
     if plot_path:
         title = f"{split}: MAE {result['mae']:.3f}% (mean predictor {result['mean_predictor_mae']:.3f}%)"
         quantity = "APPD" if target == "appd" else target
@@ -209,6 +214,5 @@ def evaluate_frames(ckpt_path: str, frames: str, length: int = 10, sequences: in
                             # how well the per-frame prediction ranks "APPD above the detector table's threshold"
                             "detection_auc": per_sequence["auc"], "detection_threshold": DETECTION_THRESHOLD}}
     if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(result, indent=1))
+        write_json(json_path, result)
     return result

@@ -141,12 +141,14 @@ def filter_table(raw_dir: Path, calib: Calibration, rounds: int) -> None:
         rect = rectify(calib, size)
         samples = [cv2.remap(r, rect.map_x, rect.map_y, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT_101)
                    for r in raws]
-        runs = [[(_ms(lambda s: deflate.zlib_compress(filtered_rows(s, kind), level), samples),
-                  float(np.mean([len(deflate.zlib_compress(filtered_rows(s, kind), level)) for s in samples])))
+        # The stream's length is fixed by the pixels and the choice: measured once, the time every round.
+        kb = [np.mean([len(deflate.zlib_compress(filtered_rows(s, kind), level)) for s in samples]) / 1e3
+              for kind, level in choices]
+        runs = [[_ms(lambda s: deflate.zlib_compress(filtered_rows(s, kind), level), samples)
                  for kind, level in choices] for _ in range(rounds)]
         for i, (kind, level) in enumerate(choices):
-            ms = float(np.median([r[i][0] for r in runs]))
-            print(f"  {size[0]}x{size[1]} {kind:7s} level {level}  {ms:6.2f} ms  {runs[0][i][1] / 1e3:7.1f} kB")
+            ms = float(np.median([r[i] for r in runs]))
+            print(f"  {size[0]}x{size[1]} {kind:7s} level {level}  {ms:6.2f} ms  {kb[i]:7.1f} kB")
 
 
 def floor_rate(raw_dir: Path, calib: Calibration, samples: int, size: tuple[int, int], encoder: str) -> float:

@@ -43,6 +43,7 @@ def test_bench_build_filters_write_pngs_that_decode_to_the_pixels():
     image = rng.integers(0, 256, (9, 13, 3), dtype=np.uint8)
     for kind in ("None", "Sub", "Up", "Average"):
         rows = bench.filtered_rows(image, kind)
-        assert rows.shape == (9, 13 * 3 + 1) and (rows[:, 0] == {"None": 0, "Sub": 1, "Up": 2, "Average": 3}[kind]).all()
+        code = {"None": 0, "Sub": 1, "Up": 2, "Average": 3}[kind]
+        assert rows.shape == (9, 13 * 3 + 1) and (rows[:, 0] == code).all()
         data = png_file(13, 9, 3, zlib.compress(rows.tobytes()))
         assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), image), kind

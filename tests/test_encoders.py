@@ -205,6 +205,11 @@ def test_resume_with_another_encoder_is_refused_naming_the_plan(setup: Setup, in
     assert tree_digest(interrupted_build) == before
 
 
+def shard_tars(out: Path) -> dict[str, bytes]:
+    """A build folder's shard tars by name: what the images' bytes are compared by."""
+    return {p.name: p.read_bytes() for p in sorted(out.glob("*.tar"))}
+
+
 def test_resume_without_encoder_goes_on_with_the_plans(setup: Setup, tmp_path: Path) -> None:
     # An interrupted --encoder opencv build, resumed as `--resume` alone (today's default is another encoder),
     # finishes with OpenCV's bytes: those of the same build uninterrupted.
@@ -214,8 +219,7 @@ def test_resume_without_encoder_goes_on_with_the_plans(setup: Setup, tmp_path: P
     assert result.exit_code == 0, result.output
     assert run_cli(setup.args(whole, "--encoder", "opencv")).exit_code == 0
     assert json.loads((out / "build.json").read_text())["encoder"] == "opencv"
-    tars = {p.name: p.read_bytes() for p in sorted(out.glob("*.tar"))}
-    assert tars and tars == {p.name: p.read_bytes() for p in sorted(whole.glob("*.tar"))}
+    assert shard_tars(out) and shard_tars(out) == shard_tars(whole)
 
 
 @pytest.mark.parametrize("recorded", ["absent", DEFAULT_ENCODER])
@@ -237,8 +241,7 @@ def test_a_jpg_build_names_no_encoder_and_resumes_whatever_its_plan_says(setup: 
     assert result.exit_code == 0, result.output
     assert run_cli(setup.args(whole, "--format", "jpg")).exit_code == 0
     assert json.loads((out / "build.json").read_text())["encoder"] is None
-    tars = {p.name: p.read_bytes() for p in sorted(out.glob("*.tar"))}
-    assert tars and tars == {p.name: p.read_bytes() for p in sorted(whole.glob("*.tar"))}
+    assert shard_tars(out) and shard_tars(out) == shard_tars(whole)
 
 
 def test_fpng_refuses_grey_and_non_png_builds(setup: Setup, tmp_path: Path) -> None:

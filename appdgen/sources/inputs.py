@@ -2,8 +2,11 @@
 that shot it, its reference calibration, and the raw images (files, or frames of recordings) with their splits."""
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.formats import calibration_topic, list_cameras, load
@@ -89,14 +92,19 @@ def _camera_of_images(calib_path: str, cameras: list[str], images: list[RawImage
     raise AppdgenError(f"{calib_path}: cameras {', '.join(fitting)} fit the images; choose one with --camera")
 
 
-def read_images(images: list[RawImage], channels: int = 3) -> list:
-    """Every raw image decoded in order as 8-bit images of `channels` (1: grey H×W, 3: BGR H×W×3): files one by one,
-    frames of recordings in one pass per recording."""
+def iter_images(images: list[RawImage], channels: int = 3) -> Iterator[np.ndarray]:
+    """Every raw image decoded lazily in order as 8-bit images of `channels` (1: grey H×W, 3: BGR H×W×3): files one
+    by one, frames of recordings in one pass per recording; AppdgenError naming the file on an unreadable one."""
     from appdgen.sources.decode import as_channels, read_image
 
     reader = recordings.FrameReader([i.frame for i in images if i.frame is not None])
     try:
-        return [read_image(i.path, channels) if i.frame is None else as_channels(reader.read(i.frame), channels)
-                for i in images]
+        for i in images:
+            yield read_image(i.path, channels) if i.frame is None else as_channels(reader.read(i.frame), channels)
     finally:
         reader.close()
+
+
+def read_images(images: list[RawImage], channels: int = 3) -> list[np.ndarray]:
+    """Every raw image decoded in order (iter_images, held in memory)."""
+    return list(iter_images(images, channels))

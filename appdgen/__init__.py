@@ -17,7 +17,7 @@ from appdgen.version import __version__
 
 #: Public name → the module that owns it (imported on first use).
 _LAZY = {"load": "appdgen.calib.formats", "rectify": "appdgen.geometry.maps", "appd": "appdgen.geometry.appd",
-         "Sampler": "appdgen.sampling.sampler", "BuildConfig": "appdgen.dataset.build",
+         "Sampler": "appdgen.sampling.sampler", "BuildConfig": "appdgen.dataset.plan",
          "build": "appdgen.dataset.build", "open_build": "appdgen.dataset.reader"}
 __all__ = ["AppdgenError", "BuildConfig", "Calibration", "PARAMS", "Sampler", "__version__", "appd", "build", "load",
            "open_build", "rectify"]

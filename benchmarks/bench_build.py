@@ -35,7 +35,8 @@ import numpy as np
 
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.formats import load
-from appdgen.dataset.build import BuildConfig, build
+from appdgen.dataset.build import build
+from appdgen.dataset.plan import BuildConfig
 from appdgen.dataset.encoders import (DEFAULT_ENCODER, ENCODERS, LEGACY_ENCODER, LIBDEFLATE_LEVEL,
                                       sub_filtered_rows)
 from appdgen.geometry.maps import rectify

@@ -17,7 +17,8 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from appdgen.dataset.build import BuildConfig, build
+from appdgen.dataset.build import build
+from appdgen.dataset.plan import BuildConfig
 from appdgen.cli import main
 from appdgen.dataset.inspect import histogram, sheet_layout, spread
 from appdgen.dataset.verify import verify

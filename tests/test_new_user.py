@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-import appdgen.dataset.build
-from appdgen.dataset.build import BuildConfig, default_shard_size, read_raw
+import appdgen.sources.raw
+from appdgen.dataset.plan import BuildConfig, default_shard_size
 from appdgen.calib.calibration import Calibration
 from appdgen.cli import main
 from appdgen.util.distribute import BACKENDS, resolve_jobs
@@ -22,8 +22,10 @@ from appdgen.errors import AppdgenError
 from appdgen.dataset.layout import FORMATS, STAGES, ShardStats
 from appdgen.geometry.remap import INTERPOLATIONS
 from appdgen.sampling.reach import UnreachableError
+from appdgen.sampling.sampler import Sampler
 from appdgen.sources.files import SPLIT_BY, list_images
 from appdgen.sources.frames import RawImage
+from appdgen.sources.raw import read_raw
 from helpers import Setup, assert_one_line_error, assert_same_build, kitti_text, run_cli, run_with_full_disk
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,7 +52,7 @@ def test_a_mid_build_refusal_of_the_ranges_says_to_overwrite(setup: Setup, tmp_p
         raise UnreachableError("--appd-max 1: after 200 directions none reached APPD 0.999 % inside the ranges; "
                                "lower --appd-max or widen --ranges")
 
-    monkeypatch.setattr(appdgen.dataset.build.Sampler, "draw", unreachable)
+    monkeypatch.setattr(Sampler, "draw", unreachable)
     line = assert_one_line_error(run_cli(setup.args(tmp_path / "out")), "lower --appd-max or widen --ranges")
     assert "rebuild with --overwrite" in line and "rerun with --resume" not in line
 
@@ -260,8 +262,8 @@ def test_an_image_that_fails_in_a_worker_gets_a_hint_that_works(setup: Setup, tm
     def broken(path: Path, *_) -> np.ndarray:
         raise AppdgenError(f"{path}: not a readable image")
 
-    monkeypatch.setattr(appdgen.dataset.build, "read_image", broken)
-    appdgen.dataset.build._decoded_version.cache_clear()
+    monkeypatch.setattr(appdgen.sources.raw, "read_image", broken)
+    appdgen.sources.raw.forget_decoded()
     line = assert_one_line_error(run_cli(setup.args(tmp_path / "out")), "not a readable image")
     assert "replace the file and rerun with --resume" in line and "rebuild with --overwrite" in line
-    appdgen.dataset.build._decoded_version.cache_clear()
+    appdgen.sources.raw.forget_decoded()

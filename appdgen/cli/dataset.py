@@ -74,7 +74,9 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
           ranges, appd_max, zero_fraction, max_fov, interp, split_by, skip_bad, topic, every, min_interval, start, end,
           channels_choice, resume, overwrite, backend, scheduler, quiet):
     """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
-    from appdgen.dataset.build import BuildConfig, build as run_build, recorded_encoder
+    from appdgen.dataset.build import build as run_build
+    from appdgen.dataset.folder import recorded_encoder
+    from appdgen.dataset.plan import BuildConfig
     from appdgen.util.distribute import resolve_jobs
     from appdgen.sampling.options import SamplingOptions
     from appdgen.sources.inputs import resolve_inputs

@@ -42,7 +42,7 @@ class SamplingOptions:
         return dict(self.ranges) if self.ranges is not None else default_ranges(reference)
 
     def build_fields(self, reference: Calibration) -> dict:
-        """The keyword arguments of dataset.build.BuildConfig these options stand for."""
+        """The keyword arguments of dataset.plan.BuildConfig these options stand for."""
         return {"ranges": self.range_map(reference), "appd_max": self.appd_max, "zero_fraction": self.zero_fraction,
                 "max_fov": self.max_fov, "interp": self.interp}
 

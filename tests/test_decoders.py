@@ -12,8 +12,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from appdgen.sources.decode import decode_bytes
+from appdgen.sources.inputs import iter_images, resolve_inputs
 from appdgen.errors import AppdgenError
-from helpers import assert_one_line_error, compressed_bag, kitti_text, raw_image, run_cli
+from helpers import assert_one_line_error, compressed_bag, kitti_text, raw_image, run_cli, write_png
 
 START_NS = 1_600_000_000_000_000_000
 
@@ -91,6 +92,33 @@ def test_corrupt_jpeg_in_a_bags_compressed_image_is_named_or_skipped(small_camer
     result = run_cli(_args(calib, bag, out, "--skip-bad"))
     assert result.exit_code == 0 and "1 images skipped" in result.output, result.output
     assert sorted(set(pq.read_table(out / "labels.parquet")["frame"].to_pylist())) == [0, 2]
+
+
+def test_iter_images_reads_files_and_frames_by_the_builds_rules(small_camera, tmp_path: Path) -> None:
+    # Every consumer of an --images spec (predict, the studies, detect, fit --online) reads through the build's
+    # own reader (sources.raw.RawReader): OpenCV's pixels, grey when asked, a file cut short since it was listed
+    # named in one line.
+    pytest.importorskip("rosbags")
+    images = [raw_image(small_camera.size, i) for i in range(3)]
+    calib = tmp_path / "calib_cam_to_cam.txt"
+    calib.write_text(kitti_text({"02": small_camera}))
+    folder = tmp_path / "png"
+    for i, image in enumerate(images):
+        write_png(folder / f"{i}.png", image)
+    bag = compressed_bag(tmp_path / "frames.bag", images, START_NS, "png", {})
+    # Grey: a file as OpenCV reads it grey, a frame converted after decoding (the two differ by up to one level).
+    greys = {folder: [cv2.imread(str(folder / f"{i}.png"), cv2.IMREAD_GRAYSCALE) for i in range(3)],
+             bag: [cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) for image in images]}
+    for spec in (folder, bag):
+        listed = list(resolve_inputs(str(spec), str(calib)).images)
+        assert all(np.array_equal(a, b) for a, b in zip(iter_images(listed), images, strict=True)), spec
+        assert all(np.array_equal(a, b) for a, b in zip(iter_images(listed, 1), greys[spec], strict=True)), spec
+    listed = list(resolve_inputs(str(folder), str(calib)).images)
+    cut = folder / "1.png"
+    cut.write_bytes(cut.read_bytes()[:-20])
+    with pytest.raises(AppdgenError, match=f"^{cut}: ") as error:
+        list(iter_images(listed))
+    assert "\n" not in str(error.value)
 
 
 @pytest.mark.parametrize("channels", [1, 3])

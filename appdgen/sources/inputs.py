@@ -13,6 +13,7 @@ from appdgen.calib.formats import calibration_topic, list_cameras, load
 from appdgen.sources import recordings
 from appdgen.sources.recordings import FrameChoice
 from appdgen.sources.frames import RawImage
+from appdgen.sources.raw import RawReader
 from appdgen.sources.files import all_grey, check_images, kitti_camera, list_images
 from appdgen.sources.headers import image_size
 from appdgen.errors import AppdgenError
@@ -94,13 +95,12 @@ def _camera_of_images(calib_path: str, cameras: list[str], images: list[RawImage
 
 def iter_images(images: list[RawImage], channels: int = 3) -> Iterator[np.ndarray]:
     """Every raw image decoded lazily in order as 8-bit images of `channels` (1: grey H×W, 3: BGR H×W×3): files one
-    by one, frames of recordings in one pass per recording; AppdgenError naming the file on an unreadable one."""
-    from appdgen.sources.decode import as_channels, read_image
-
-    reader = recordings.FrameReader([i.frame for i in images if i.frame is not None])
+    by one, frames of recordings in one pass per recording (raw.RawReader, the build's own reader, so the same rules
+    and errors); AppdgenError naming the file on an unreadable or truncated one."""
+    reader = RawReader(images)
     try:
-        for i in images:
-            yield read_image(i.path, channels) if i.frame is None else as_channels(reader.read(i.frame), channels)
+        for image in images:
+            yield reader.read(image, channels)
     finally:
         reader.close()
 

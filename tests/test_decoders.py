@@ -3,6 +3,7 @@ cv2.imdecode returns as an image, with only a libjpeg warning) named in one line
 counted: in an image folder and in a bag's CompressedImage."""
 from __future__ import annotations
 
+import ast
 import json
 from pathlib import Path
 
@@ -17,6 +18,12 @@ from appdgen.errors import AppdgenError
 from helpers import assert_one_line_error, compressed_bag, kitti_text, raw_image, run_cli, write_png
 
 START_NS = 1_600_000_000_000_000_000
+ROOT = Path(__file__).resolve().parents[1]
+#: Decoders of encoded images, which only appdgen/sources/ calls on raw frames.
+DECODERS = {("cv2", "imread"), ("cv2", "imdecode"), ("simplejpeg", "decode_jpeg")}
+#: Modules that decode what appdgen itself wrote, not raw frames: synth's PNG frames rewritten as a recording, and a
+#: build's samples read back (dataset/images.py) and checked (dataset/verify.py).
+OWN_OUTPUTS = {"synth/recording.py", "dataset/images.py", "dataset/verify.py"}
 
 
 def jpeg(image: np.ndarray, quality: int = 90) -> bytes:
@@ -119,6 +126,16 @@ def test_iter_images_reads_files_and_frames_by_the_builds_rules(small_camera, tm
     with pytest.raises(AppdgenError, match=f"^{cut}: ") as error:
         list(iter_images(listed))
     assert "\n" not in str(error.value)
+
+
+def test_only_sources_decodes_raw_frames() -> None:
+    package = ROOT / "appdgen"
+    calls = {(str(path.relative_to(package)), node.lineno)
+             for path in package.rglob("*.py") if path.relative_to(package).parts[0] != "sources"
+             for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+             if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+             and (node.value.id, node.attr) in DECODERS}
+    assert {name for name, _ in calls} <= OWN_OUTPUTS, sorted(calls)
 
 
 @pytest.mark.parametrize("channels", [1, 3])

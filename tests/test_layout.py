@@ -24,7 +24,7 @@ PACKAGES = ("appdgen", "train")
 #: not import; its own CLI (train.cli, train.__main__) sits over appdgen.cli, whose shared click options it reuses.
 #: appdgen imports nothing of train.
 STAGES: dict[str, int] = {"errors": 0, "version": 0, "util": 1, "lens": 2, "calib": 3, "geometry": 4, "sampling": 5,
-                          "sources": 6, "dataset": 7, "synth": 8, "analysis": 8, "train": 9, "cli": 10,
+                          "sources": 6, "dataset": 7, "detect": 7, "synth": 8, "analysis": 8, "train": 9, "cli": 10,
                           "train.cli": 11, "__init__": 12, "__main__": 12}
 #: What the ground may import of appdgen.
 GROUND: dict[str, set[str]] = {"errors": set(), "version": set(), "util": {"errors"}}

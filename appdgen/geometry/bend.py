@@ -117,6 +117,40 @@ def _reference_grid(reference: Calibration, reference_crop: Crop, columns: int) 
     return _ReferenceGrid(u, v, design, reference_crop.camera_matrix(reference.size), raw_u, raw_v)
 
 
+def _warp(reference: Calibration, k: np.ndarray, sample: Calibration, sample_crop: Crop, u: np.ndarray,
+          v: np.ndarray) -> tuple[np.ndarray, ...]:
+    """At sample output pixels (u, v): M̂m(p) (raw px), the reference's undistorted normalized (x, y) of it, and
+    W(p) = K̂*·(x, y) (reference output px; k = K̂*)."""
+    raw_u, raw_v = _raw(sample, *_normalized(sample_crop, sample, u, v))  # M̂m(p)
+    x, y = undistort_pixels(raw_u, raw_v, reference)
+    return raw_u, raw_v, x, y, k[0, 0] * x + k[0, 2], k[1, 1] * y + k[1, 2]
+
+
+def output_warp(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop,
+                u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """W(p) at sample output pixels (u, v) of a raw-size output: the reference output pixel showing the same ray
+    (reference output px)."""
+    if reference.size != sample.size:
+        raise ValueError(f"calibrations differ in raw size: {reference.size} vs {sample.size}")
+    k = reference_crop.camera_matrix(reference.size)
+    wu, wv = _warp(reference, k, sample, sample_crop, np.asarray(u, np.float64), np.asarray(v, np.float64))[4:]
+    return wu, wv
+
+
+def output_rest(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop,
+                u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The non-affine rest of W at sample output pixels (u, v), in sample output pixels (N×2): A⁻¹·r(p), with
+    W(p) = A·p + t + r(p) fitted by least squares over the given points. Edge points p_i of a line straight in
+    the reference rectification have p_i + rest(p_i) collinear: what the sample image shows of the bend."""
+    u, v = np.asarray(u, np.float64).ravel(), np.asarray(v, np.float64).ravel()
+    wu, wv = output_warp(reference, reference_crop, sample, sample_crop, u, v)
+    design = np.column_stack([np.ones_like(u), u, v])
+    coef_u, coef_v = (np.linalg.lstsq(design, w, rcond=None)[0] for w in (wu, wv))
+    rest = np.column_stack([wu - design @ coef_u, wv - design @ coef_v])
+    a = np.array([[coef_u[1], coef_u[2]], [coef_v[1], coef_v[2]]])
+    return np.linalg.solve(a, rest.T).T
+
+
 def _split(reference: Calibration, reference_crop: Crop, sample: Calibration, sample_crop: Crop, columns: int
            ) -> tuple[WarpField, np.ndarray, np.ndarray]:
     """The field on the grid and the affine fit's coefficients (u and v: t, a_u, a_v in reference output pixels)."""
@@ -124,9 +158,7 @@ def _split(reference: Calibration, reference_crop: Crop, sample: Calibration, sa
         raise ValueError(f"calibrations differ in raw size: {reference.size} vs {sample.size}")
     ref = _reference_grid(reference, reference_crop, columns)
     u, v, design, k = ref.u, ref.v, ref.design, ref.k
-    raw_u, raw_v = _raw(sample, *_normalized(sample_crop, sample, u, v))  # M̂m(p)
-    x, y = undistort_pixels(raw_u, raw_v, reference)
-    wu, wv = k[0, 0] * x + k[0, 2], k[1, 1] * y + k[1, 2]  # W(p), reference output pixels
+    raw_u, raw_v, x, y, wu, wv = _warp(reference, k, sample, sample_crop, u, v)
     coef_u, coef_v = (np.linalg.lstsq(design, w, rcond=None)[0] for w in (wu, wv))
     ru, rv = wu - design @ coef_u, wv - design @ coef_v
     # J*(W(p)) = diag(fx, fy)·∂distort/∂(x, y)·K̂*⁻¹: raw pixels per reference output pixel where the ray lands.

@@ -1,0 +1,149 @@
+"""The detector: how far a believed calibration is from the camera that took the frames, read from straight edges.
+
+Frames are rectified with the belief as `appdgen build` rectifies its reference; their line evidence (edges) is
+solved for the belief's field model (model) in one robust solve per frame or sequence (solve), and the solve maps
+to APPD, bend and parameter offsets under the sampling prior (posterior), tempered by the error model.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from appdgen.calib.calibration import Calibration
+from appdgen.detect.baseline import Baseline
+from appdgen.detect.edges import EdgeParams, EdgePoints, edge_points
+from appdgen.detect.errormodel import MIN_SEGMENTS, kappa
+from appdgen.detect.model import FieldModel, belief_crop, cached_model
+from appdgen.detect.posterior import posterior
+from appdgen.detect.solve import Design, Estimate, SolveParams, pool, solve
+from appdgen.errors import AppdgenError
+from appdgen.geometry.maps import rectify
+from appdgen.geometry.remap import remap_image
+from appdgen.sources.decode import as_channels
+
+DEFAULT_THRESHOLD_PCT = 0.5  # APPD in % of the raw diagonal above which a belief is "miscalibrated"
+DEFAULT_SEQUENCE = 10  # frames pooled per sequence
+SURE = 0.95  # p_above at or over this: "miscalibrated"; at or under 1 − SURE: "ok"
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """One frame's line evidence: its name, segments found, and the edge points (belief output px)."""
+
+    name: str
+    segments: int
+    points: EdgePoints = field(repr=False, compare=False)
+    seconds: float = field(default=0.0, compare=False)
+
+
+@dataclass(frozen=True)
+class Reading:
+    """What a frame or a pooled sequence says about the belief (APPD and bend in % of the raw diagonal; offsets:
+    true − belief in each parameter's units, (mean, sd)); appd_pct None when it abstains, with the reason."""
+
+    frames: int
+    segments: int
+    appd_pct: float | None
+    appd_sd_pct: float | None
+    bend_pct: float | None
+    bend_sd_pct: float | None
+    p_above: float | None
+    threshold_pct: float
+    offsets: dict[str, tuple[float, float]]
+    reason: str | None
+
+    @property
+    def verdict(self) -> str:
+        """"abstain", "miscalibrated" (p_above ≥ 0.95), "ok" (p_above ≤ 0.05) or "uncertain"."""
+        if self.appd_pct is None or self.p_above is None:
+            return "abstain"
+        if self.p_above >= SURE:
+            return "miscalibrated"
+        return "ok" if self.p_above <= 1.0 - SURE else "uncertain"
+
+    def to_dict(self) -> dict:
+        """JSON-ready fields, offsets as {name: {"mean": m, "sd": s}}, and the verdict."""
+        return {"frames": self.frames, "segments": self.segments, "appd_pct": self.appd_pct,
+                "appd_sd_pct": self.appd_sd_pct, "bend_pct": self.bend_pct, "bend_sd_pct": self.bend_sd_pct,
+                "p_above": self.p_above, "threshold_pct": self.threshold_pct,
+                "offsets": {k: {"mean": m, "sd": s} for k, (m, s) in self.offsets.items()},
+                "reason": self.reason, "verdict": self.verdict}
+
+
+def abstention(frames: int, segments: int, threshold_pct: float, reason: str) -> Reading:
+    """A Reading that gives no number, only why."""
+    return Reading(frames, segments, None, None, None, None, None, threshold_pct, {}, reason)
+
+
+class Detector:
+    """Reads how far a believed calibration is from the camera that took the frames, from straight edges."""
+
+    def __init__(self, belief: Calibration, max_fov: float | None = None, *, cache_dir: Path | None = None,
+                 progress: Callable[[str], None] | None = None) -> None:
+        start = time.perf_counter()
+        self.belief = belief
+        self.max_fov = max_fov
+        self.model: FieldModel
+        self.model, self.cached = cached_model(belief, max_fov, cache_dir, progress)
+        self.rect = rectify(belief, crop=belief_crop(belief, max_fov))
+        self.edge_params = EdgeParams()
+        self.solve_params = SolveParams()
+        self.seconds_to_model = time.perf_counter() - start
+
+    def rectify(self, raw: np.ndarray) -> np.ndarray:
+        """Raw 8-bit grey or BGR frame at belief.size → the grey rectified image at raw size (as build's reference)."""
+        if raw.ndim not in (2, 3) or raw.shape[1] != self.belief.width or raw.shape[0] != self.belief.height:
+            shape = "x".join(str(x) for x in raw.shape[1::-1])
+            raise AppdgenError(f"image is {shape} but the calibration is {self.belief.width}x{self.belief.height}")
+        return remap_image(as_channels(raw, 1), self.rect)
+
+    def evidence(self, raw: np.ndarray, name: str = "") -> Evidence:
+        """Rectify a raw frame and find its line evidence."""
+        start = time.perf_counter()
+        points = edge_points(self.rectify(raw), self.edge_params)
+        return Evidence(name, points.segments, points, time.perf_counter() - start)
+
+    def design(self, points: EdgePoints, baseline: Baseline | None = None) -> Design:
+        """The solve's observations of one frame's points under this model (a baseline's bias removed)."""
+        n = points.normal[points.seg]
+        mu, basis = self.model.field_at(points.u, points.v)
+        y = points.e + np.einsum("ij,ij->i", n, mu)
+        if baseline is not None:
+            y = y - np.einsum("ij,ij->i", n, baseline.bias_at(self.belief, self.max_fov, points.u, points.v))
+        return Design(y, -np.einsum("ikj,ij->ik", basis, n), points.s, points.seg, points.segments)
+
+    def estimate(self, evidence: Sequence[Evidence], baseline: Baseline | None = None) -> Estimate:
+        """The pooled robust solve of the frames' evidence."""
+        designs = [self.design(e.points, baseline) for e in evidence if e.segments]
+        return solve(pool(designs) if designs else Design(np.zeros(0), np.zeros((0, len(self.model.var))),
+                                                          np.zeros(0), np.zeros(0, int), 0),
+                     self.model.var, self.solve_params)
+
+    def read(self, evidence: Sequence[Evidence], baseline: Baseline | None = None,
+             threshold_pct: float = DEFAULT_THRESHOLD_PCT) -> Reading:
+        """One frame or a sequence pooled in one solve; abstains when the evidence is too weak."""
+        if baseline is not None:
+            baseline.check(self.belief)
+        frames, found = len(evidence), sum(e.segments for e in evidence)
+        if found == 0:
+            return abstention(frames, 0, threshold_pct, "no straight edges found (blank or featureless image)")
+        est = self.estimate(evidence, baseline)
+        if est.segments < MIN_SEGMENTS:
+            return abstention(frames, est.segments, threshold_pct,
+                              f"too few straight segments ({est.segments} < {MIN_SEGMENTS})")
+        post = posterior(self.model, est.h, est.g, kappa(est, frames), threshold_pct)
+        offsets = {n: (float(m), float(s)) for n, m, s in zip(self.model.names, post.offsets, post.offsets_sd)}
+        return Reading(frames, est.segments, post.appd, post.appd_sd, post.bend, post.bend_sd, post.p_above,
+                       threshold_pct, offsets, None)
+
+    def save_baseline(self, evidence: Sequence[Evidence], source: str) -> Baseline:
+        """How this camera and its scenery read under the calibration it was calibrated with (belief = REF)."""
+        est = self.estimate(evidence)
+        if est.segments < MIN_SEGMENTS:
+            raise AppdgenError(f"{source}: too few straight segments for a baseline ({est.segments} < {MIN_SEGMENTS})")
+        return Baseline.record(self.belief, self.max_fov, self.model.grid_u, self.model.grid_v,
+                               self.model.field_of(est.c), len(evidence), est.segments, source)

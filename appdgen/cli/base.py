@@ -89,6 +89,10 @@ calib_option = click.option("--calib", "calib_path", required=True, type=click.P
 IMAGES_HELP = ("Raw images: a folder (recursive), a glob pattern, or a list file ('PATH [SPLIT]' per line, or "
                "'PATH<TAB>SPLIT' for paths with spaces); or a recording: a ROS 1 .bag, a ROS 2 bag folder or "
                ".db3/.mcap file (appdgen[ros]), a video file (appdgen[video]).")
+images_option = click.option("--images", "images_spec", required=True, help=IMAGES_HELP)
+
+
+quiet_option = click.option("--quiet", is_flag=True, help="No progress line.")
 
 
 def split_by_option(command: Callable) -> Callable:

@@ -106,25 +106,25 @@ train-one-scene: $(TRAIN_STAMP)
 
 # The accelerator experiment (docs/training.md): full-size synthetic KITTI 02 frames, samples, a timed fit of the
 # paper's CNN, test MAE vs the mean predictor in one line. Sized to end within 9 minutes on one H200 with 16 cores.
-# Sizes are flags of `python -m train experiment` (ARGS="--minutes 3 --samples 8000" ...).
+# Sizes are flags of `python -m studies.experiment` (ARGS="--minutes 3 --samples 8000" ...).
 paper-scale: $(TRAIN_STAMP)
-	$(PY) -m train experiment --out runs/paper-scale --overwrite $(ARGS)
+	$(PY) -m studies.experiment --out runs/paper-scale --overwrite $(ARGS)
 
 # The same code at 348x128 with small sizes: under 3 minutes on 2 CPU cores. Proves the chain, not the quality.
 paper-scale-tiny: $(TRAIN_STAMP)
-	$(PY) -m train experiment --tiny --out runs/paper-scale-tiny --overwrite $(ARGS)
+	$(PY) -m studies.experiment --tiny --out runs/paper-scale-tiny --overwrite $(ARGS)
 
 # The detector comparison (docs/training.md, issue 23) for the accelerator: every arm (paper CNN at 348x128, patch
 # network at 1392x512 on appd, bend and the dense field, the plumb-line floor) on --samples fresh pairs each.
 paper-scale-detector: $(TRAIN_STAMP)
-	$(PY) -m train experiment --detector --out runs/paper-scale-detector --samples 8000 $(ARGS)
+	$(PY) -m studies.experiment --detector --out runs/paper-scale-detector --samples 8000 $(ARGS)
 
 # The same comparison on 2 CPU cores (the table in docs/training.md), and its few-minute smoke run.
 detector: $(TRAIN_STAMP)
-	nice -n 10 $(PY) benchmarks/detector.py --images 6000 --frames 300 --sequences 32 --out runs/detector $(ARGS)
+	nice -n 10 $(PY) -m studies.detector --images 6000 --frames 300 --sequences 32 --out runs/detector $(ARGS)
 
 detector-tiny: $(TRAIN_STAMP)
-	$(PY) benchmarks/detector.py --tiny --out runs/detector-tiny $(ARGS)
+	$(PY) -m studies.detector --tiny --out runs/detector-tiny $(ARGS)
 
 # Wheels the accelerator machine lacks (its python3 has CUDA torch, OpenCV, pyarrow, click, joblib, pyyaml but not
 # webdataset): pure-Python, carried in .whl/ (git-ignored). See docs/training.md, "Running it on the accelerator".

@@ -11,6 +11,8 @@ Run: python benchmarks/bench_render.py [--batch 16] [--repeat 3]
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 import time
 
 import cv2
@@ -21,9 +23,10 @@ from appdgen.calib.defaults import default_calibration
 from appdgen.geometry.crop import valid_region
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
-from train.loop import train_step
-from train.model import AppdNet, ModelConfig
-from train.warp import maps_batch, rectify_batch, remap_batch
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
+from train.loop import adam, train_step  # noqa: E402
+from train.model import AppdNet, ModelConfig  # noqa: E402
+from train.warp import maps_batch, rectify_batch, remap_batch  # noqa: E402
 
 SIZES = ((348, 128), (1392, 512))
 
@@ -74,7 +77,7 @@ def main() -> None:
         map_x, map_y = maps_batch(calibs, new_ks, size)
         floats = batch.float()
         net = AppdNet(ModelConfig(*size)).to(memory_format=torch.channels_last).train()
-        opt = torch.optim.Adam(net.parameters(), lr=1e-4)
+        opt = adam(net.parameters(), 1e-4)
         step = {"image": remap_batch(batch, map_x, map_y), "label": torch.rand(n)}
         for _ in range(3):  # oneDNN picks and caches its kernels on the first steps
             train_step(net, opt, step, cpu, None)

@@ -8,17 +8,20 @@ If the loader's rate is well above the step's, training is compute-bound and mor
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import torch
 
-from train import runtime
-from train.data import Selection, StreamSpec, make_loader, open_shards
-from train.loop import train_step
-from train.model import AppdNet, ModelConfig
-from train.synthetic import write_shards
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # its synthetic shards
+from synthetic_shards import write_shards  # noqa: E402
+from train import runtime  # noqa: E402
+from train.data import Selection, StreamSpec, make_loader, open_shards  # noqa: E402
+from train.loop import adam, train_step  # noqa: E402
+from train.model import AppdNet, ModelConfig  # noqa: E402
 
 
 def parse() -> argparse.Namespace:
@@ -59,7 +62,7 @@ def main() -> None:
         next(batches)  # start-up (worker fork, first shard open) is not throughput
         load_rate = rate(lambda: next(batches), args.loader_batches, args.batch)
         model = AppdNet(ModelConfig(w, h)).to(device).to(memory_format=torch.channels_last).train()
-        opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+        opt = adam(model.parameters(), 1e-4)
         fixed = next(batches)
         for _ in range(5):  # oneDNN picks and caches kernels on the first few steps
             train_step(model, opt, fixed, device, dtype)

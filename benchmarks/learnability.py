@@ -10,17 +10,20 @@ trainer's own shard reader; each step is the trainer's (bf16 autocast where the 
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 import time
 
 import numpy as np
 import torch
 from torch import nn
 
-import train.model as model
-from train import runtime
-from train.data import Selection, ShardStream, StreamSpec, open_shards
-from train.loop import to_input, train_step
-from train.model import AppdNet, ModelConfig
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
+import train.model as model  # noqa: E402
+from train import runtime  # noqa: E402
+from train.data import Selection, ShardStream, StreamSpec, open_shards  # noqa: E402
+from train.loop import adam, to_input, train_step  # noqa: E402
+from train.model import AppdNet, ModelConfig  # noqa: E402
 
 #: The smaller network of the paper's released code (4 blocks of 8 filters, dense 256 → 64): ~14× fewer FLOPs.
 SMALL = dict(filters=(8, 8, 8, 8), dense=(256, 64))
@@ -74,7 +77,7 @@ def main() -> None:
     if args.bn:
         model.conv_block = bn_block
     net = AppdNet(ModelConfig(width=w, height=h, **(SMALL if args.small else {}))).to(memory_format=torch.channels_last)
-    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    opt = adam(net.parameters(), args.lr)
     base = float((train["label"].mean() - test["label"][:TEST_MAX]).abs().mean())
     print(f"{len(train['label'])} train / {len(test['label'])} test images of {w}x{h}; train label variance "
           f"{float(train['label'].var()):.4f}; mean-predictor test MAE {base:.3f} %", flush=True)

@@ -28,9 +28,10 @@ COLUMNS = ("minute", "images", "train_loss", "test_mae", "mean_mae", "ratio", "d
 def prepare(args: argparse.Namespace, out: Path) -> Path:
     """Synthesize train and test frames, build the offline arm's pairs and the test set; returns the calibration."""
     from appdgen.calib.formats import load
-    from appdgen.dataset.build import BuildConfig, build
+    from appdgen.dataset.build import build
+    from appdgen.dataset.plan import BuildConfig
     from appdgen.sources.files import list_images
-    from train.experiment import ExperimentOptions, synthesize_frames
+    from studies.experiment import ExperimentOptions, synthesize_frames
 
     raw = out / "raw"
     opts = ExperimentOptions(out=str(out), frames=args.frames, val_frames=1, test_frames=args.test_frames,

@@ -11,6 +11,8 @@ Run: python benchmarks/plumbline.py [--frames 160] [--scale 0.25] [--seed 0] [--
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 import time
 
 import cv2
@@ -23,7 +25,8 @@ from appdgen.geometry.remap import remap_image
 from appdgen.sampling.sampler import Sampler, target_px
 from appdgen.synth import frame_rng, render_frame, scale_calibration
 from appdgen.util.sizes import parse_size
-from train.plumbline import PlumbLine, feature_matrix
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
+from train.plumbline import PlumbLine, feature_matrix  # noqa: E402
 
 
 def pairs(scenes: int, scale: float, seed: int, draws: int = 1, size: tuple[int, int] | None = None

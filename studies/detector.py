@@ -7,40 +7,53 @@ grid, geometry.bend.warp_field; APPD and bend read off it), and the classical pl
 when present); the networks on `appd` and on `bend` (geometry.bend.split_warp, % of the raw diagonal).
 
 Every network arm of a stream sees the same images in the same order: image i of the run is fit --online's pair
-i (train.online.pairs: draw(seed, i) of the build sampler, frame frame_of(seed, i)), rendered once per stream and fed to
-each arm in turn; the low and full streams draw with the same seeds from the same synthetic streets (synth frame i
+i (train.online.pairs: draw(seed, i) of the build sampler, frame frame_of(seed, i)); each arm is a fit of the
+trainer's one loop (train.loop.Trainer, saved by train.checkpoint to OUT/STREAM-MODEL-TARGET/last.pt), the arms one
+after the other; the low and full streams draw with the same seeds from the same synthetic streets (synth frame i
 depends on (seed, i) only, at any scale). The number of training images is fixed, not the minutes.
 
 Axes (each S sequences of L frames, one fixed-seed miscalibration per sequence, the same S on every synthetic
 axis): `views`, the training frames under other miscalibrations (memorisation); `viewpoint`, the training streets
 from a camera moved sideways (appdgen synth --offset); `unseen`, streets of another seed; `real`, real frames in
-recording order (given; with --finetune N, after the first N, whose pairs join the floor's fit).
+recording order (given; with --finetune N, after the first N, whose pairs join the floor's fit). Frames are read
+through appdgen.sources; the pairs, the test sequences and their metrics are the trainer's (train.scoring), so that
+`python -m train evaluate --frames` scores as this table does.
+
+    python -m studies.detector [--tiny] [--images 4000] [--frames 300] [--sequences 16] [--out runs/detector]
+    python -m studies.detector --calib ../shared/data/real/euroc_micro_cam1/sensor.yaml \\
+        --real ../shared/data/real/euroc_micro_cam1/data --low-scale 0.5 --grey   # sim-to-real
+
+Prints one markdown table and a JSON line with the command, the CPU seconds and the load average.
 """
 from __future__ import annotations
 
+import argparse
+import csv
 import json
 import math
 import os
+import shutil
 import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from appdgen.analysis.studies import spearman  # ties share their mean rank; nan when a side is constant
+from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
+from appdgen.sources.frames import RawImage
+from train.scoring import LABELS, SEQUENCE_SEED, make_pairs, sequence_metrics, sequence_pairs
 
+ROOT = Path(__file__).resolve().parents[1]
 #: What a network regresses: APPD or bend (one value, % of diagonal) or the dense field (FIELD_COLUMNS grid).
 TARGETS = ("appd", "bend", "field")
 #: Grid columns of the dense target (rows in the raw aspect, at least 4: 12 × 4 at KITTI's): 4 values a point.
 FIELD_COLUMNS = 12
 #: The two image streams: the paper's quarter-size input and the full raw resolution.
 STREAMS = ("low", "full")
-#: Draw seed of the synthetic axes' sequences: views, viewpoint and unseen all draw the same miscalibrations (sequence
-#: k under draw (SEQUENCE_SEED, k)), so differences between those axes are the scenes only. It is unseen's former
-#: seed: the unseen pairs did not change when the axes stopped drawing their own (7001, 7002).
-SEQUENCE_SEED = 7003
+#: The synthetic axes (views, viewpoint, unseen) all draw train.scoring's test sequences (sequence k under draw
+#: (SEQUENCE_SEED, k)), so differences between those axes are the scenes only.
 #: Draw seeds of the test axes (fixed: every run tests on the same miscalibrations), and the recalibration pairs'.
 AXIS_SEEDS = {"views": SEQUENCE_SEED, "viewpoint": SEQUENCE_SEED, "unseen": SEQUENCE_SEED, "real": 7004}
 RECAL_SEED = 7005
@@ -48,7 +61,6 @@ RECAL_SEED = 7005
 TUNE_SEED = 7006
 #: Synth seed offsets: the training streets and the unseen ones.
 TRAIN_SYNTH, TEST_SYNTH = 101, 202
-THRESHOLD = 0.5  # % APPD: the detection threshold whose AUC is reported
 #: Rendering interpolation: bicubic, 3.4× cheaper than Lanczos at 1392×512 (docs/training.md), as paper-scale's.
 INTERP = "cubic"
 
@@ -129,41 +141,48 @@ def synth_all(o: DetectorOptions) -> None:
                                            ("viewpoint", test, TRAIN_SYNTH + o.seed, replace(CAR, offset=o.offset)),
                                            ("unseen", test, TEST_SYNTH + o.seed, CAR)):
             where = Path(o.out) / "raw" / stream / folder
-            if len(list(where.glob("frame_*.png"))) != count:
+            if len(listed(where)) != count:
                 synthesize(calib, count, where, seed, stream_scale(o, stream), jobs=o.jobs, mount=mount)
 
 
-def load_frames(paths: list[Path], grey: bool, scale: float = 1.0) -> np.ndarray:
-    """N×H×W×3 uint8 BGR frames (grey replicated when `grey`; INTER_AREA-resized by `scale`)."""
+def listed(folder: Path) -> list[RawImage]:
+    """A folder's images in name order (appdgen.sources.files.list_images, recursive); [] when it has none."""
+    from appdgen.sources.files import list_images
+
+    try:
+        return list_images(str(folder))
+    except AppdgenError:  # no such folder, or no images in it yet
+        return []
+
+
+def load_frames(images: list[RawImage], grey: bool, scale: float = 1.0) -> np.ndarray:
+    """N×H×W×3 uint8 BGR frames read through appdgen.sources (grey replicated when `grey`; INTER_AREA-resized by
+    `scale`)."""
     import cv2
 
-    from appdgen.sources.decode import read_image
+    from appdgen.sources.decode import as_channels
+    from appdgen.sources.inputs import iter_images
 
     out = []
-    for path in paths:
-        image = read_image(path)
-        if scale != 1.0:
-            image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-        if grey:
-            image = cv2.cvtColor(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2BGR)
-        out.append(image)
+    for image in iter_images(images, 1 if grey else 3):
+        image = as_channels(image, 3)
+        out.append(image if scale == 1.0 else cv2.resize(image, None, fx=scale, fy=scale,
+                                                         interpolation=cv2.INTER_AREA))
     return np.stack(out)
 
 
-def recording(o: DetectorOptions) -> list[Path]:
+def recording(o: DetectorOptions) -> list[RawImage]:
     """The real frames in recording order (file names sort by time stamp); [] without --real."""
-    if not o.real or not Path(o.real).is_dir():
-        return []
-    return sorted(Path(o.real).rglob("*.png"))
+    return listed(Path(o.real)) if o.real and Path(o.real).is_dir() else []
 
 
-def real_frames(o: DetectorOptions) -> list[Path]:
+def real_frames(o: DetectorOptions) -> list[RawImage]:
     """The real axis's frames: those after the --finetune ones, whole sequences, S·L of them at most."""
     found = recording(o)[o.finetune:]
     return found[: (len(found) // o.length) * o.length][: o.sequences * o.length]
 
 
-def tune_frames(o: DetectorOptions) -> list[Path]:
+def tune_frames(o: DetectorOptions) -> list[RawImage]:
     """The first --finetune real frames: the floor's real training frames, never tested on."""
     return recording(o)[:o.finetune]
 
@@ -193,37 +212,23 @@ def open_stream(o: DetectorOptions, stream: str) -> Stream:
     s = Stream(PairRecipe(ref, o.camera or "02", ref.size, sampling))
     raw = Path(o.out) / "raw" / stream
     for folder in ("train", "viewpoint", "unseen"):
-        s.frames[folder] = load_frames(sorted((raw / folder).glob("frame_*.png")), o.grey)
+        s.frames[folder] = load_frames(listed(raw / folder), o.grey)
     for folder, paths in (("real", real_frames(o)), ("tune", tune_frames(o))):
         if paths:
             s.frames[folder] = load_frames(paths, True, scale)
     return s
 
 
-def targets(scene, draw) -> tuple[float, float, np.ndarray]:
-    """(APPD %, bend %, the dense field: FIELD_COLUMNS grid × (moved x, y, rest x, y) in %) of one draw."""
+def field_label(scene, draw) -> np.ndarray:
+    """The dense target of a draw: FIELD_COLUMNS grid × (moved x, y, rest x, y), % of the raw diagonal."""
     from appdgen.geometry.bend import warp_field
-    from appdgen.sampling.sampler import target_px
 
-    ref, ref_crop = scene.reference, scene.sampler().reference_rect.crop
-    bend = target_px(scene.sampler(), draw, "bend")
-    f = warp_field(ref, ref_crop, draw.calib, draw.rect.crop, FIELD_COLUMNS)
-    dense = np.concatenate([f.moved, f.rest], axis=1).ravel()
-    return px_to_pct(draw.appd_px, ref), px_to_pct(bend, ref), px_to_pct(dense, ref)
+    f = warp_field(scene.reference, scene.sampler().reference_rect.crop, draw.calib, draw.rect.crop, FIELD_COLUMNS)
+    return px_to_pct(np.concatenate([f.moved, f.rest], axis=1).ravel(), scene.reference)
 
 
-def make_pairs(scene, frames: np.ndarray, draws: list[tuple[int, int]], frame_ids: list[int]) -> dict:
-    """Images (uint8 N×3×H×W) and targets of pairs: draw (seed, index) j on frame frame_ids[j]."""
-    sampler = scene.sampler()
-    images, appd, bend, dense = [], [], [], []
-    for (seed, index), frame in zip(draws, frame_ids):
-        draw = sampler.draw(seed, index)
-        images.append(scene.render(frames[frame], draw).transpose(2, 0, 1))
-        a, b, d = targets(scene, draw)
-        appd.append(a)
-        bend.append(b)
-        dense.append(d)
-    return {"image": np.stack(images), "appd": np.array(appd), "bend": np.array(bend), "field": np.stack(dense)}
+#: Every target of the comparison: the trainer's labels (appd, bend) and the dense field.
+PAIR_LABELS = {**LABELS, "field": field_label}
 
 
 def train_pairs(s: Stream, seed: int, first: int, count: int) -> dict:
@@ -232,22 +237,14 @@ def train_pairs(s: Stream, seed: int, first: int, count: int) -> dict:
 
     n = len(s.frames["train"])
     ids = range(first, first + count)
-    return make_pairs(s.scene, s.frames["train"], [(seed, i) for i in ids], [frame_of(seed, i, n) for i in ids])
-
-
-def sequence_pairs(scene, frames: np.ndarray, seed: int, sequences: int, length: int) -> dict:
-    """make_pairs of `sequences` sequences: sequence k = frames k·length … k·length + length − 1, all under draw
-    (seed, k) (one miscalibration, as a robot's camera keeps it); as many as the frames allow, at most
-    `sequences`."""
-    count = min(sequences, len(frames) // length)
-    draws = [(seed, k) for k in range(count) for _ in range(length)]
-    return make_pairs(scene, frames, draws, list(range(count * length)))
+    return make_pairs(s.scene, s.frames["train"], [(seed, i) for i in ids], [frame_of(seed, i, n) for i in ids],
+                      PAIR_LABELS)
 
 
 def axis_pairs(s: Stream, axis: str, o: DetectorOptions) -> dict:
     """An axis's test pairs: sequence_pairs of its folder under AXIS_SEEDS[axis]."""
     folder = {"views": "train", "viewpoint": "viewpoint", "unseen": "unseen", "real": "real"}[axis]
-    return sequence_pairs(s.scene, s.frames[folder], AXIS_SEEDS[axis], o.sequences, o.length)
+    return sequence_pairs(s.scene, s.frames[folder], AXIS_SEEDS[axis], o.sequences, o.length, PAIR_LABELS)
 
 
 def axes(o: DetectorOptions) -> list[str]:
@@ -255,77 +252,96 @@ def axes(o: DetectorOptions) -> list[str]:
     return ["views", "viewpoint", "unseen"] + (["real"] if real_frames(o) else [])
 
 
-# --- networks -------------------------------------------------------------------------------------------
+# --- networks: fits of the trainer's one loop -------------------------------------------------------------
 
 
-class Network:
-    """One network arm: model, optimiser, target standardisation and the output line fitted after training."""
+def arm_trainer(arm: Arm, s: Stream, o: DetectorOptions, device, run: Path):
+    """The train.loop.Trainer of one network arm: o.images fresh pairs of the stream in batches of o.batch, its
+    target standardised by the first o.stats pairs (which also give the input normalisation)."""
+    from train.data import PixelStats
+    from train.fit import FitOptions
+    from train.loop import Trainer
+    from train.model import ModelConfig
+    from train.online.trainer import OnlinePlan
+    from train import checkpoint
 
-    def __init__(self, arm: Arm, first: dict, o: DetectorOptions, device) -> None:
-        import torch
+    class ArmTrainer(Trainer):
+        """Trainer over the arm's pairs (finite: o.images of them); then the output line and its predictions."""
 
-        from train.data import PixelStats
-        from train.model import ModelConfig
-        from train.nets import build
+        def loader(self, step: int):
+            """Batches step … of the run's pairs, the target standardised (timed in data_s)."""
+            import torch
 
-        self.arm, self.device = arm, device
-        stats = PixelStats()
-        stats.add(first["image"])
-        mean, std, _ = stats.result()
-        y = first[arm.target].reshape(len(first["image"]), -1)
-        self.mean, self.std = y.mean(0), np.maximum(y.std(0), 1e-3)
-        torch.manual_seed(o.seed)
-        _, _, h, w = first["image"].shape
-        cfg = ModelConfig(w, h, mean=tuple(mean), std=tuple(std), arch=arm.model,
-                          outputs=y.shape[1] if arm.target == "field" else 1)
-        self.net = build(cfg).to(device).to(memory_format=torch.channels_last).train()
-        self.opt = torch.optim.Adam(self.net.parameters(), lr=o.lr)
-        self.line = {t: (0.0, 1.0) for t in ("appd", "bend")}  # read-off → prediction: intercept, slope
-        self.label_mean = {t: float(first[t].mean()) for t in ("appd", "bend")}
+            for j in range(step, self.opts.steps):
+                t0 = time.process_time()
+                pairs = train_pairs(s, o.seed, j * o.batch, min(o.batch, o.images - j * o.batch))
+                y = (pairs[arm.target].reshape(len(pairs["image"]), -1) - self.mean) / self.std
+                label = torch.from_numpy(y.astype(np.float32))
+                self.data_s += time.process_time() - t0
+                yield {"image": torch.from_numpy(pairs["image"]), "label": label if arm.target == "field" else label[:, 0]}
 
-    def step(self, batch: dict, dtype) -> float:
-        """One Adam step on the standardised target (train.loop's train_step, with its shape check)."""
-        import torch
+        def announce(self, step: int, steps: int) -> None:
+            """One stderr line: which arm trains on how many pairs."""
+            print(f"detector {arm.stream}: {arm.name} on {o.images} pairs, {steps} steps of {o.batch}", file=sys.stderr)
 
-        from train.loop import train_step
+    first = train_pairs(s, o.seed, 0, o.stats)
+    stats = PixelStats()
+    stats.add(first["image"])
+    mean, std, _ = stats.result()
+    y = first[arm.target].reshape(len(first["image"]), -1)
+    _, _, h, w = first["image"].shape
+    cfg = ModelConfig(w, h, mean=tuple(mean), std=tuple(std), arch=arm.model,
+                      outputs=y.shape[1] if arm.target == "field" else 1)
+    steps = math.ceil(o.images / o.batch)
+    opts = FitOptions(shards=None, run=str(run), steps=steps, batch=o.batch, lr=o.lr, ckpt_every=steps,
+                      log_every=max(1, steps // 10), seed=o.seed, device=o.device, model=arm.model, quiet=True)
+    shutil.rmtree(run, ignore_errors=True)  # log.csv is appended to: a fresh run starts without one
+    run.mkdir(parents=True)
+    state = checkpoint.initial(cfg, o.seed, {"study": "detector", "arm": arm.name, "stream": arm.stream})
+    trainer = ArmTrainer(opts, OnlinePlan(f"{arm.stream} pairs", None, o.images, None), state, device, 0, 1, run)
+    trainer.arm, trainer.data_s = arm, 0.0
+    trainer.mean, trainer.std = y.mean(0), np.maximum(y.std(0), 1e-3)
+    trainer.label_mean = {t: float(first[t].mean()) for t in ("appd", "bend")}
+    return trainer
 
-        y = (batch[self.arm.target].reshape(len(batch["image"]), -1) - self.mean) / self.std
-        label = torch.from_numpy(y.astype(np.float32))
-        label = label if self.arm.target == "field" else label[:, 0]
-        return float(train_step(self.net, self.opt, {"image": torch.from_numpy(batch["image"]), "label": label},
-                                self.device, dtype))
 
-    def read_off(self, images: np.ndarray, dtype, batch: int = 32) -> dict[str, np.ndarray]:
-        """Raw read-offs per target: the scalar output, or the field's mean moved and rest lengths."""
-        import torch
+def read_off(trainer, images: np.ndarray, batch: int = 32) -> dict[str, np.ndarray]:
+    """An arm's raw read-offs per target: the scalar output, or the field's mean moved and rest lengths."""
+    import torch
 
-        from train import runtime
-        from train.loop import to_input
+    from train import runtime
+    from train.loop import to_input
 
-        self.net.eval()
-        out = []
-        with torch.no_grad():
-            for i in range(0, len(images), batch):
-                x = to_input({"image": torch.from_numpy(images[i:i + batch])}, self.device)
-                with runtime.autocast(self.device, dtype):
-                    out.append(self.net(x).float().cpu().numpy().reshape(len(x), -1))
-        self.net.train()
-        y = np.concatenate(out) * self.std + self.mean
-        if self.arm.target != "field":
-            return {self.arm.target: y[:, 0]}
-        points = y.reshape(len(y), -1, 4)
-        return {"appd": np.hypot(points[..., 0], points[..., 1]).mean(1),
-                "bend": np.hypot(points[..., 2], points[..., 3]).mean(1)}
+    net = trainer.model.eval()
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(images), batch):
+            x = to_input({"image": torch.from_numpy(images[i:i + batch])}, trainer.device)
+            with runtime.autocast(trainer.device, trainer.dtype):
+                out.append(net(x).float().cpu().numpy().reshape(len(x), -1))
+    y = np.concatenate(out) * trainer.std + trainer.mean
+    if trainer.arm.target != "field":
+        return {trainer.arm.target: y[:, 0]}
+    points = y.reshape(len(y), -1, 4)
+    return {"appd": np.hypot(points[..., 0], points[..., 1]).mean(1),
+            "bend": np.hypot(points[..., 2], points[..., 3]).mean(1)}
 
-    def fit_line(self, pairs: dict, dtype) -> None:
-        """Least-squares line from read-off to target on fresh training pairs (a dense read-off is biased low)."""
-        for t, r in self.read_off(pairs["image"], dtype).items():
-            slope, intercept = np.polyfit(r, pairs[t], 1) if np.std(r) > 0 else (0.0, float(pairs[t].mean()))
-            self.line[t] = (float(intercept), float(slope))
 
-    def predict(self, images: np.ndarray, dtype) -> dict[str, list[float]]:
-        """Predictions per target (% of diagonal) after the fitted line."""
-        return {t: (self.line[t][0] + self.line[t][1] * r).tolist() for t, r in self.read_off(images, dtype).items()}
+def output_line(trainer, pairs: dict) -> dict[str, tuple[float, float]]:
+    """Least-squares line (intercept, slope) from read-off to target on fresh training pairs, per target (a dense
+    read-off is biased low)."""
+    line = {}
+    for t, r in read_off(trainer, pairs["image"]).items():
+        slope, intercept = np.polyfit(r, pairs[t], 1) if np.std(r) > 0 else (0.0, float(pairs[t].mean()))
+        line[t] = (float(intercept), float(slope))
+    return line
+
+
+def logged_losses(run: Path) -> tuple[float, float]:
+    """The first and the last logged training loss of a fit (run/log.csv: a tenth of the steps each)."""
+    with open(run / "log.csv", newline="") as fh:
+        losses = [float(r["train_loss"]) for r in csv.DictReader(fh) if r["train_loss"]]
+    return losses[0], losses[-1]
 
 
 def floor_arms(arms: list[Arm], s: Stream, o: DetectorOptions, tests: dict[str, dict]) -> dict:
@@ -348,7 +364,7 @@ def floor_arms(arms: list[Arm], s: Stream, o: DetectorOptions, tests: dict[str, 
     if "tune" in s.frames:
         n = len(s.frames["tune"])
         tune = make_pairs(s.scene, s.frames["tune"], [(TUNE_SEED, i) for i in range(o.floor_images)],
-                          [i % n for i in range(o.floor_images)])
+                          [i % n for i in range(o.floor_images)], PAIR_LABELS)
         fits.append((f"plumbline+real{n}", np.vstack([fits[0][1], features(tune)]),
                      {t: np.concatenate([pairs[t], tune[t]]) for t in ("appd", "bend")}))
     tested = {axis: features(t) for axis, t in tests.items()}
@@ -363,81 +379,39 @@ def floor_arms(arms: list[Arm], s: Stream, o: DetectorOptions, tests: dict[str, 
 
 
 def run_stream(o: DetectorOptions, stream: str) -> dict:
-    """Train every arm of one stream on the same pairs, fit their output lines, predict every axis."""
+    """Fit every network arm of one stream on the same pairs (one after the other), fit their output lines,
+    predict every axis; the floor's arms beside them."""
     import torch
 
     from train import runtime
 
     device = runtime.pick_device(o.device)
-    dtype = runtime.autocast_dtype(device, "auto")
     arms = [a for a in ARMS if a.stream == stream and a.name in o.arms]
     s = open_stream(o, stream)
-    nets = [Network(a, train_pairs(s, o.seed, 0, o.stats), o, device) for a in arms if a.model != "plumbline"]
-    start, data_s, losses = time.process_time(), 0.0, {n.arm.name: [] for n in nets}
-    for j in range(math.ceil(o.images / o.batch) if nets else 0):
-        t0 = time.process_time()
-        batch = train_pairs(s, o.seed, j * o.batch, min(o.batch, o.images - j * o.batch))
-        data_s += time.process_time() - t0
-        for n in nets:
-            losses[n.arm.name].append(n.step(batch, dtype))
-        if (j + 1) % 50 == 0:
-            print(f"detector {stream}: {(j + 1) * o.batch} images, {time.process_time() - start:.0f} CPU s, loss "
-                  + ", ".join(f"{k} {np.mean(v[-50:]):.3f}" for k, v in losses.items()), file=sys.stderr, flush=True)
+    start, trainers = time.process_time(), []
+    for a in (a for a in arms if a.model != "plumbline"):
+        trainer = arm_trainer(a, s, o, device, Path(o.out) / f"{stream}-{a.name.replace('/', '-')}")
+        trainer.train(trainer.opts.steps)
+        trainers.append(trainer)
     train_s = time.process_time() - start
     recal = train_pairs(s, RECAL_SEED, 0, o.recal)
     tests = {axis: axis_pairs(s, axis, o) for axis in axes(o)}
     result = {"stream": stream, "size": list(s.scene.size), "threads": torch.get_num_threads(),
-              "train_cpu_s": train_s, "data_cpu_s": data_s, "images": o.images, "arms": {},
+              "train_cpu_s": train_s, "data_cpu_s": sum(t.data_s for t in trainers), "images": o.images, "arms": {},
               "truth": {axis: {t: tests[axis][t].tolist() for t in ("appd", "bend")} for axis in tests}}
-    for n in nets:
-        n.fit_line(recal, dtype)
-        # the weights, so that a later change of the scoring re-scores without retraining
-        torch.save(n.net.state_dict(), Path(o.out) / f"{stream}-{n.arm.name.replace('/', '-')}.pt")
-        w = max(1, len(losses[n.arm.name]) // 10)
-        result["arms"][n.arm.name] = {
-            "label_mean": n.label_mean[n.arm.target] if n.arm.target != "field" else n.label_mean,
-            "line": n.line, "first_loss": float(np.mean(losses[n.arm.name][:w])),
-            "last_loss": float(np.mean(losses[n.arm.name][-w:])),
-            "predictions": {axis: n.predict(t["image"], dtype) for axis, t in tests.items()}}
+    for t in trainers:
+        line = output_line(t, recal)
+        first_loss, last_loss = logged_losses(t.run)
+        result["arms"][t.arm.name] = {
+            "label_mean": t.label_mean[t.arm.target] if t.arm.target != "field" else t.label_mean,
+            "line": line, "first_loss": first_loss, "last_loss": last_loss,
+            "predictions": {axis: {k: (line[k][0] + line[k][1] * r).tolist()
+                                   for k, r in read_off(t, pairs["image"]).items()} for axis, pairs in tests.items()}}
     result["arms"].update(floor_arms([a for a in arms if a.model == "plumbline"], s, o, tests))
     return result
 
 
-# --- metrics --------------------------------------------------------------------------------------------
-
-
-def auc(score: np.ndarray, positive: np.ndarray) -> float:
-    """Area under the ROC curve of `score` for the positives (Mann-Whitney, ties count half); nan if one class."""
-    pos, neg = score[positive], score[~positive]
-    if len(pos) == 0 or len(neg) == 0:
-        return float("nan")
-    greater = (pos[:, None] > neg[None, :]).mean()
-    ties = (pos[:, None] == neg[None, :]).mean()
-    return float(greater + 0.5 * ties)
-
-
-def bootstrap_se(pred: np.ndarray, truth: np.ndarray, mean: float, length: int, rounds: int = 500) -> float:
-    """Standard error of MAE / mean-predictor MAE when the sequences (the axis's miscalibrations) are resampled:
-    how much the ratio owes to which few miscalibrations the axis drew."""
-    err = np.abs(pred - truth).reshape(-1, length).mean(1)
-    base = np.abs(mean - truth).reshape(-1, length).mean(1)
-    pick = np.random.default_rng(0).integers(len(err), size=(rounds, len(err)))
-    return float(np.std(err[pick].sum(1) / np.maximum(base[pick].sum(1), 1e-12)))
-
-
-def metrics(pred: np.ndarray, truth: np.ndarray, appd: np.ndarray, mean: float, length: int) -> dict:
-    """Per image: MAE / mean-predictor MAE, Spearman ρ, AUC of APPD > THRESHOLD; per sequence (`length`
-    consecutive images, one miscalibration): the mean and the median prediction's MAE / the mean predictor's."""
-    base = np.abs(mean - truth).mean()
-    seq_pred = pred.reshape(-1, length)
-    seq_truth = truth.reshape(-1, length)[:, 0]
-    seq_base = np.abs(mean - seq_truth).mean()
-    return {"ratio": float(np.abs(pred - truth).mean() / base), "ratio_se": bootstrap_se(pred, truth, mean, length),
-            "mae": float(np.abs(pred - truth).mean()),
-            "mean_mae": float(base), "rho": spearman(pred, truth), "auc": auc(pred, appd > THRESHOLD),
-            "seq_mean": float(np.abs(seq_pred.mean(1) - seq_truth).mean() / seq_base),
-            "seq_median": float(np.abs(np.median(seq_pred, 1) - seq_truth).mean() / seq_base),
-            "n": int(len(pred)), "sequences": int(len(seq_truth))}
+# --- the table ----------------------------------------------------------------------------------------
 
 
 def rows(results: list[dict], o: DetectorOptions) -> list[dict]:
@@ -451,8 +425,8 @@ def rows(results: list[dict], o: DetectorOptions) -> list[dict]:
                     mean = a["label_mean"][t] if isinstance(a["label_mean"], dict) else a["label_mean"]
                     out.append({"arm": name, "target": t, "axis": axis, "stream": r["stream"],
                                 "size": "x".join(map(str, r["size"])),
-                                **metrics(np.array(pred), np.array(truth[t]), np.array(truth["appd"]), mean,
-                                          o.length)})
+                                **sequence_metrics(np.array(pred), np.array(truth[t]), np.array(truth["appd"]),
+                                                   mean, o.length)})
     return out
 
 
@@ -483,8 +457,10 @@ def run(o: DetectorOptions, parallel: bool = True) -> dict:
     streams = [s for s in STREAMS if any(a.stream == s and a.name in o.arms for a in ARMS)]
     if parallel and o.device == "cpu":
         cores = sorted(os.sched_getaffinity(0))
-        procs = [subprocess.Popen([sys.executable, "-m", "train.detector", str(out / "options.json"), s,
-                                   str(cores[i % len(cores)])]) for i, s in enumerate(streams)]
+        # -m studies.detector from anywhere: the repository's root on the children's path
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(ROOT), os.environ.get("PYTHONPATH"))))}
+        procs = [subprocess.Popen([sys.executable, "-m", "studies.detector", "--child", str(out / "options.json"), s,
+                                   str(cores[i % len(cores)])], env=env) for i, s in enumerate(streams)]
         if any(p.wait() for p in procs):
             raise RuntimeError("a detector stream failed (see its stderr above)")
     else:
@@ -531,5 +507,43 @@ def child(options: str, stream: str, core: int) -> None:
     (Path(o.out) / f"{stream}.part.json").write_text(json.dumps(result))
 
 
+def options(argv: list[str] | None = None) -> DetectorOptions:
+    """DetectorOptions from the command line (--tiny: TINY's sizes where not given)."""
+    parser = argparse.ArgumentParser(prog="python -m studies.detector", description=__doc__.splitlines()[0])
+    parser.add_argument("--tiny", action="store_true", help="All arms in a few minutes on 2 cores: the chain only.")
+    parser.add_argument("--arms", help="Comma-separated arm names (default: all), e.g. paper/appd,patch/field.")
+    for f in fields(DetectorOptions):
+        if f.name == "arms":
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        if f.type == "bool":
+            parser.add_argument(flag, action="store_true")
+        else:
+            parser.add_argument(flag, type={"int": int, "float": float}.get(f.type, str), default=None)
+    args = parser.parse_args(argv)
+    given = {f.name: getattr(args, f.name) for f in fields(DetectorOptions)
+             if f.name != "arms" and getattr(args, f.name) not in (None, False)}
+    o = DetectorOptions(**given)
+    if args.tiny:
+        o = replace(o, **{k: v for k, v in TINY.items() if k not in given})
+    return replace(o, arms=tuple(args.arms.split(","))) if args.arms else o
+
+
+def main(argv: list[str] | None = None) -> dict:
+    """Run the comparison and print its table and a JSON line."""
+    argv = sys.argv[1:] if argv is None else argv
+    o = options(argv)
+    load_before = os.getloadavg()
+    summary = run(o)
+    print(table(summary["rows"]))
+    print(json.dumps({"command": " ".join(["python", "-m", "studies.detector", *argv]),
+                      "wall_s": round(summary["wall_s"]), "synth_s": round(summary["synth_s"]),
+                      "load_before": load_before, "load_after": os.getloadavg(), "streams": summary["streams"]}))
+    return summary
+
+
 if __name__ == "__main__":
-    child(sys.argv[1], sys.argv[2], int(sys.argv[3]))
+    if sys.argv[1:2] == ["--child"]:  # one stream of run(): options file, stream, core
+        child(sys.argv[2], sys.argv[3], int(sys.argv[4]))
+    else:
+        main()

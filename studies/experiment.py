@@ -7,6 +7,8 @@ of the `val` frames, and only the `test` frames are built, for evaluate. Offline
 every split (split = folder) and fit trains on its `train` shards. Either way fit runs for a wall-clock budget,
 keeping the checkpoint best on `val`, and evaluate scores it on `test`. Every stage is the library call behind
 the matching command (appdgen synth, appdgen build, python -m train fit / evaluate).
+
+    python -m studies.experiment [--tiny] [--offline] [--detector] [--out runs/paper-scale] [--minutes 6] ...
 """
 from __future__ import annotations
 
@@ -16,9 +18,14 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import click
+
 from appdgen.synth import scale_calibration
+from train.cli import main as train_main
 from train.errors import TrainError
 from train.model import min_side
+from train.nets import MODELS
+from train.scoring import summary_line as evaluation_line
 
 #: Splits = folders under OUT/raw, each from its own seed offset.
 SPLIT_SEEDS = {"train": 0, "val": 1, "test": 2}
@@ -56,7 +63,7 @@ TINY = dict(out="runs/paper-scale-tiny", frames=48, val_frames=8, test_frames=16
             minutes=1.0)
 
 
-def tiny(opts: ExperimentOptions) -> ExperimentOptions:
+def with_tiny_sizes(opts: ExperimentOptions) -> ExperimentOptions:
     """opts with TINY's sizes wherever they are still the full run's defaults."""
     full = ExperimentOptions()
     return replace(opts, **{k: v for k, v in TINY.items() if getattr(opts, k) == getattr(full, k)})
@@ -184,23 +191,21 @@ def run(opts: ExperimentOptions) -> dict:
 
 def summary_line(r: dict) -> str:
     """The experiment's one printed line: test MAE vs the mean predictor, training speed, each stage's time."""
-    t, s = r["test"], r["seconds"]
-    ratio = t["mae_vs_mean_predictor"]
+    s = r["seconds"]
     train = r["splits"].get("train")
     seen = f"fresh pairs of {r['frames']} frames, {r['fit'].get('render')} render" if train is None else \
         f"{train} samples"
     stages = ", ".join(f"{name} {sec:.0f} s" for name, sec in s.items())
     w, h = r["size"]
-    return (f"paper-scale: test MAE {t['mae']:.3f} % vs mean-predictor MAE {t['mean_predictor_mae']:.3f} % "
-            f"(ratio {'n/a' if ratio is None else f'{ratio:.2f}'}) on {t['n']} images; train "
-            f"{r['fit']['images_per_s'] or 0:.0f} images/s, {r['fit']['images']} images ({seen}) at {w}x{h} on "
-            f"{r['device']}; {stages}; total {sum(s.values()):.0f} s")
+    return (f"paper-scale: {evaluation_line(r['test'])}; train {r['fit']['images_per_s'] or 0:.0f} images/s, "
+            f"{r['fit']['images']} images ({seen}) at {w}x{h} on {r['device']}; {stages}; total "
+            f"{sum(s.values()):.0f} s")
 
 
 def detector_options(opts: ExperimentOptions, tiny_sizes: bool = False):
-    """The detector comparison (train.detector) at this experiment's sizes: --frames training streets, --samples
+    """The detector comparison (studies.detector) at this experiment's sizes: --frames training streets, --samples
     images per arm, --test-frames split into sequences of 10; TINY's sizes with `tiny_sizes`."""
-    from train.detector import TINY as DETECTOR_TINY, DetectorOptions
+    from studies.detector import TINY as DETECTOR_TINY, DetectorOptions
 
     o = DetectorOptions(out=opts.out, frames=opts.frames, sequences=max(1, opts.test_frames // 10),
                         images=opts.samples, batch=opts.batch, seed=opts.seed, device=opts.device,
@@ -211,7 +216,70 @@ def detector_options(opts: ExperimentOptions, tiny_sizes: bool = False):
 def run_detector(o) -> dict:
     """Every arm of the detector comparison (in-process, one stream after the other); returns its summary."""
     from train import runtime
-    from train.detector import run as run_arms
+    from studies.detector import run as run_arms
 
     device = runtime.pick_device(o.device)
     return run_arms(replace(o, device=device.type), parallel=device.type == "cpu")
+
+
+def _sized(name: str, help_text: str, **kw):
+    """An option whose default lives in ExperimentOptions (shown in the help, applied there)."""
+    attr = name.lstrip("-").replace("-", "_")
+    default = getattr(ExperimentOptions(), "image_format" if attr == "format" else attr, None)
+    shown = f" [default: {default}]" if default is not None else ""
+    return click.option(name, attr, default=None, help=help_text + shown, **kw)
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@_sized("--out", "Run folder (runs/paper-scale-tiny with --tiny).")
+@click.option("--tiny", is_flag=True, help="Small sizes for 2 CPU cores (< 3 min): proves the chain, not the quality.")
+@_sized("--frames", "Train frames.", type=click.IntRange(1))
+@_sized("--val-frames", "Validation frames (a third seed).", type=click.IntRange(1))
+@_sized("--test-frames", "Test frames (a second seed).", type=click.IntRange(1))
+@_sized("--samples", "Train samples; val and test frames get as many per frame.", type=click.IntRange(1))
+@_sized("--scale", "Camera scale: 1 = 1392x512, 0.25 = 348x128.", type=float)
+@_sized("--format", "Shard image encoding.", type=click.Choice(["png", "npy"]))
+@_sized("--minutes", "Fit's wall-clock budget.", type=click.FloatRange(0, min_open=True))
+@_sized("--steps", "A step budget instead of --minutes.", type=click.IntRange(1))
+@_sized("--batch", "Images per step.", type=click.IntRange(1))
+@_sized("--lr", "Adam learning rate.", type=float)
+@_sized("--normalize", "Input normalisation.", type=click.Choice(["channel", "pixel"]))
+@_sized("--jobs", "Synth and build processes [default: all cores].", type=click.IntRange(1))
+@_sized("--workers", "DataLoader workers [default: all cores on CUDA, 1 on CPU].", type=click.IntRange(0))
+@_sized("--device", "auto, cpu or cuda.", type=click.Choice(["auto", "cpu", "cuda"]))
+@_sized("--seed", "Seed of frames, samples, weights and data order.", type=int)
+@_sized("--mount", "Synthetic camera pose spread (appdgen synth --mount).", type=click.Choice(["car", "loose"]))
+@click.option("--offline", is_flag=True,
+              help="Build every split and fit on the shards, instead of fit --online on fresh pairs of the frames.")
+@_sized("--model", "fit --model.", type=click.Choice(list(MODELS)))
+@click.option("--detector", is_flag=True,
+              help="Run the detector comparison instead (studies.detector: every arm × target on --samples fresh "
+                   "pairs each, tested on the training views, a new viewpoint and unseen streets); prints its table.")
+@click.option("--overwrite", is_flag=True, help="Replace a previous run in --out.")
+@click.option("--quiet", is_flag=True, help="No progress lines.")
+def experiment(tiny: bool, offline: bool, detector: bool, **kw) -> None:
+    """Synthesize full-size KITTI 02 frames, fit the paper's CNN on fresh pairs of them (or --offline on a build),
+    evaluate on built test frames; prints one line."""
+    given = {k: v for k, v in kw.items() if v is not None}
+    if "steps" in given:
+        given["minutes"] = None
+    opts = ExperimentOptions(online=not offline, **{"image_format" if k == "format" else k: v for k, v in given.items()})
+    if detector:
+        from studies.detector import table
+
+        o = detector_options(opts, tiny)
+        # explicit sizes win over --tiny's
+        o = replace(o, **{k: v for k, v in {"frames": given.get("frames"), "images": given.get("samples")}.items()
+                          if v is not None})
+        click.echo(table(run_detector(o)["rows"]))
+        return
+    click.echo(summary_line(run(with_tiny_sizes(opts) if tiny else opts)))
+
+
+def main(argv: list[str] | None = None) -> None:
+    """`python -m studies.experiment`: the trainer's one-line errors (exit 2) and torch check."""
+    train_main(argv, experiment, "python -m studies.experiment")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,4 +1,5 @@
-"""The detector comparison (train.detector, benchmarks/detector.py): its metrics, its dense target, a run of every arm."""
+"""The detector comparison (studies.detector, `python -m studies.detector`): its metrics (train.scoring's), its dense
+target, a run of every arm."""
 from __future__ import annotations
 
 import itertools
@@ -12,15 +13,17 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from appdgen.analysis.studies import spearman  # noqa: E402
 from appdgen.geometry.appd import px_to_pct  # noqa: E402
 from appdgen.calib.defaults import default_calibration  # noqa: E402
 from appdgen.sampling.options import SamplingOptions  # noqa: E402
 from appdgen.sampling.sampler import target_px  # noqa: E402
 from appdgen.synth import scale_calibration  # noqa: E402
 from helpers import raw_image  # noqa: E402
-from train.detector import (ARMS, FIELD_COLUMNS, TUNE_SEED, Arm, DetectorOptions, Stream, auc, axis_pairs,  # noqa: E402
-                            floor_arms, metrics, real_frames, spearman, targets, tune_frames)
-from train.cli import main  # noqa: E402
+from studies.detector import (ARMS, FIELD_COLUMNS, PAIR_LABELS, TUNE_SEED, Arm, DetectorOptions, Stream,  # noqa: E402
+                              axis_pairs, floor_arms, real_frames, tune_frames)
+from studies.experiment import main  # noqa: E402
+from train.scoring import auc, sequence_metrics as metrics  # noqa: E402
 from train.online.recipe import PairRecipe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,7 +67,7 @@ def test_the_dense_targets_read_off_is_appd_and_bend():
     sampler = scene.sampler()
     for i in range(5):
         draw = sampler.draw(3, i)
-        appd, bend, dense = targets(scene, draw)
+        appd, bend, dense = (PAIR_LABELS[t](scene, draw) for t in ("appd", "bend", "field"))
         points = dense.reshape(-1, 4)
         assert len(points) == FIELD_COLUMNS * 4  # 12 × 4 at KITTI's aspect
         assert appd == pytest.approx(px_to_pct(draw.appd_px, ref))
@@ -122,7 +125,7 @@ def test_the_finetuned_floor_fits_on_the_synthetic_and_the_real_pairs_and_is_tes
 @pytest.mark.slow
 def test_every_arm_runs_on_cpu_through_the_experiment(tmp_path, capsys):
     out = tmp_path / "d"
-    main(["experiment", "--detector", "--tiny", "--out", str(out), "--frames", "4", "--samples", "4"])
+    main(["--detector", "--tiny", "--out", str(out), "--frames", "4", "--samples", "4"])
     printed = capsys.readouterr().out
     summary = json.loads((out / "summary.json").read_text())
     found = {(r["arm"], r["target"], r["axis"]) for r in summary["rows"]}
@@ -137,8 +140,8 @@ def test_every_arm_runs_on_cpu_through_the_experiment(tmp_path, capsys):
 
 @pytest.mark.heavy
 def test_the_benchmark_tiny_mode_prints_every_arm(tmp_path):
-    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "detector.py"), "--tiny", "--out",
-                          str(tmp_path / "d")], capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    out = subprocess.run([sys.executable, "-m", "studies.detector", "--tiny", "--out", str(tmp_path / "d")],
+                         capture_output=True, text=True, check=True, cwd=ROOT).stdout
     for arm in ARMS:
         if arm.model != "plumbline":
             assert f"| {arm.name} |" in out

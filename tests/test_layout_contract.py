@@ -54,7 +54,8 @@ SCRIPT = textwrap.dedent("""
 
     from train.cli import main as train
     from train.data import Selection, ShardStream, StreamSpec, open_shards
-    from train.synthetic import write_shards
+    sys.path.insert(0, str(Path(root) / "tests"))
+    from synthetic_shards import write_shards
 
     shards = open_shards(out)
     report["read_by_trainer"] = [list(shards.size), shards.split_count("all"), len(shards.shards)]

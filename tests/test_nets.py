@@ -10,11 +10,11 @@ torch = pytest.importorskip("torch")
 from train.checkpoint import build_model, load  # noqa: E402
 from train.cli import main  # noqa: E402
 from train.errors import TrainError  # noqa: E402
-from train.loop import check_shapes, train_step  # noqa: E402
+from train.loop import adam, check_shapes, train_step  # noqa: E402
 from train.model import AppdNet, ModelConfig  # noqa: E402
 from train.nets import MODELS, PATCH, PatchNet, PlumbLineNet, build  # noqa: E402
 from train.plumbline import PlumbLine, feature_matrix  # noqa: E402
-from train.synthetic import write_shards  # noqa: E402
+from synthetic_shards import write_shards  # noqa: E402
 
 
 class Column(torch.nn.Module):
@@ -31,7 +31,7 @@ class Column(torch.nn.Module):
 def test_train_step_refuses_an_n_by_1_prediction_against_an_n_target():
     net = Column()
     batch = {"image": torch.zeros(4, 3, 8, 8, dtype=torch.uint8), "label": torch.rand(4)}
-    opt = torch.optim.Adam(net.parameters())
+    opt = adam(net.parameters(), 1e-3)
     with pytest.raises(TrainError, match=r"\(4, 1\) differs from the target's \(4,\)"):
         train_step(net, opt, batch, torch.device("cpu"), None)
     # what the check prevents: MSE of (N, 1) against (N,) is over N×N pairs, its optimum the batch mean

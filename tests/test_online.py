@@ -175,8 +175,10 @@ def test_online_options_errors_are_one_line(frames, tmp_path, capsys):
 
 
 def test_experiment_goes_online_without_a_training_build(tmp_path, capsys):
+    from studies.experiment import main as experiment
+
     out = tmp_path / "exp"
-    main(["experiment", "--tiny", "--out", str(out), "--frames", "3", "--val-frames", "1", "--test-frames", "2",
+    experiment(["--tiny", "--out", str(out), "--frames", "3", "--val-frames", "1", "--test-frames", "2",
           "--samples", "12", "--steps", "2", "--batch", "4", "--jobs", "1", "--workers", "0", "--quiet"])
     line = capsys.readouterr().out.strip()
     assert line.startswith("paper-scale: test MAE ") and "fresh pairs of 3 frames, cpu render" in line
@@ -240,7 +242,7 @@ def test_online_fit_on_bend_records_it_and_resume_keeps_it(frames, tmp_path, cap
 
 
 def test_evaluate_frames_scores_sequences_of_unseen_frames_under_one_draw_each(online_run, frames, tmp_path, capsys):
-    from train.detector import SEQUENCE_SEED
+    from train.scoring import SEQUENCE_SEED
     from train.loop import to_input
 
     calib, images = frames
@@ -274,7 +276,7 @@ def test_evaluate_frames_scores_sequences_of_unseen_frames_under_one_draw_each(o
 
 
 def test_evaluate_frames_refuses_an_offline_checkpoint(tmp_path, capsys):
-    from train.synthetic import write_shards
+    from synthetic_shards import write_shards
 
     shards = write_shards(tmp_path / "shards", n=8, size=(128, 128), per_shard=8)
     main(["fit", "--shards", str(shards), "--run", str(tmp_path / "run"), "--steps", "1", "--batch", "4",

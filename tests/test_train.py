@@ -24,7 +24,7 @@ from train.holdout import held_out, holdout_group, holdout_unit  # noqa: E402
 from train.errors import TrainError  # noqa: E402
 from train.model import AppdNet, ModelConfig, check_size  # noqa: E402
 from train.predict import running_verdicts  # noqa: E402
-from train.synthetic import write_shards  # noqa: E402
+from synthetic_shards import write_shards  # noqa: E402
 
 STEPS = 30
 
@@ -418,8 +418,14 @@ def test_pixel_normalisation_subtracts_the_mean_training_image(shards, tmp_path,
 
 def test_experiment_runs_every_stage_and_prints_one_line(tmp_path, capsys):
     # The tiny mode's code path at smaller sizes (make paper-scale-tiny runs the real tiny sizes).
+    from studies.experiment import main as experiment
+
+    def run_cli(args, capsys):  # `python -m studies.experiment ARGS` in-process
+        experiment([str(a) for a in args])
+        return capsys.readouterr().out
+
     out = tmp_path / "exp"
-    line = run_cli(["experiment", "--tiny", "--offline", "--out", out, "--frames", 3, "--val-frames", 1,
+    line = run_cli(["--tiny", "--offline", "--out", out, "--frames", 3, "--val-frames", 1,
                     "--test-frames", 2, "--samples", 12, "--steps", 2, "--batch", 4, "--jobs", 1, "--quiet"],
                    capsys).strip()
     assert line.count("\n") == 0 and line.startswith("paper-scale: test MAE ")
@@ -435,10 +441,10 @@ def test_experiment_runs_every_stage_and_prints_one_line(tmp_path, capsys):
         (out / "raw" / "test" / "frame_000000.png").read_bytes()  # other seeds: other scenes
     assert len(train_frames) == 3 and len(test_frames) == 2
     with pytest.raises(SystemExit):  # a second run refuses to replace the first without --overwrite
-        run_cli(["experiment", "--tiny", "--out", out, "--steps", 1], capsys)
+        run_cli(["--tiny", "--out", out, "--steps", 1], capsys)
     assert "--overwrite" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # 278x102 cannot pass 7 max-pools: refused before any frame is drawn
-        run_cli(["experiment", "--tiny", "--scale", 0.2, "--out", tmp_path / "small"], capsys)
+        run_cli(["--tiny", "--scale", 0.2, "--out", tmp_path / "small"], capsys)
     assert "too small" in capsys.readouterr().err and not (tmp_path / "small").exists()
 
 
@@ -447,7 +453,7 @@ def test_experiment_runs_every_stage_and_prints_one_line(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def bend_run(shards, tmp_path_factory) -> Path:
-    """A short fit on the synthetic shards' bend_pct (half of their APPD, see train.synthetic)."""
+    """A short fit on the synthetic shards' bend_pct (half of their APPD, see synthetic_shards)."""
     run = tmp_path_factory.mktemp("runs") / "bend"
     main(["fit", "--shards", str(shards), "--run", str(run), "--steps", "4", "--batch", "8", "--ckpt-every", "4",
           "--workers", "0", "--val-fraction", "0.2", "--target", "bend", "--quiet"])

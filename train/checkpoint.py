@@ -34,19 +34,28 @@ def check_target(target: str) -> str:
 
 def fresh(opts, size: tuple[int, int], stats: tuple[list[float], list[float], np.ndarray], channels: str,
           config: dict) -> dict:
-    """A new run's checkpoint: untrained weights seeded by opts.seed, input normalisation from the run's own images
-    (per-channel mean and std in [0, 1], and the mean image C×H×W), and `config` (label mean, appd_max, crop rule,
-    data) completed with the model, the target and its label column, fit's options and torch's version."""
+    """A new fit's checkpoint (initial): input normalisation from the run's own images (per-channel mean and std in
+    [0, 1], and the mean image C×H×W), and `config` (label mean, appd_max, crop rule, data) completed with the
+    target and its label column, fit's options and torch's version."""
     mean, std, mean_image = stats
-    torch.manual_seed(opts.seed)
-    model = build(ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), channels=channels,
-                              normalize=opts.normalize, arch=opts.model))
-    if opts.normalize == "pixel":
+    cfg = ModelConfig(size[0], size[1], mean=tuple(mean), std=tuple(std), channels=channels, normalize=opts.normalize,
+                      arch=opts.model)
+    return initial(cfg, opts.seed, {"target": opts.target, "label": check_target(opts.target), **config,
+                                    "fit": asdict(opts), "versions": {"torch": str(torch.__version__)}},
+                   mean_image)  # TorchVersion is not weights_only-safe
+
+
+def initial(cfg: ModelConfig, seed: int, config: dict, mean_image: np.ndarray | None = None) -> dict:
+    """A new run's checkpoint, for fit and for every other fit of the trainer's loop (the studies' arms): the
+    untrained network of `cfg` (weights seeded by `seed`; `mean_image` C×H×W for normalize 'pixel'), step 0, and
+    `config` after the model's."""
+    torch.manual_seed(seed)
+    model = build(cfg)
+    if cfg.normalize == "pixel":
         with torch.no_grad():
             model.normalize.mean.copy_(torch.from_numpy(mean_image)[None])
-    config = {"model": model.cfg.to_dict(), "target": opts.target, "label": check_target(opts.target), **config,
-              "fit": asdict(opts), "versions": {"torch": str(torch.__version__)}}  # TorchVersion is not weights_only-safe
-    return {"step": 0, "model": model.state_dict(), "optimizer": None, "config": config, "best_val_mae": None}
+    return {"step": 0, "model": model.state_dict(), "optimizer": None, "config": {"model": cfg.to_dict(), **config},
+            "best_val_mae": None}
 
 
 def check_plain(obj: object, where: str = "checkpoint") -> None:

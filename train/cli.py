@@ -4,7 +4,7 @@ from __future__ import annotations
 import csv
 import json
 import sys
-from dataclasses import asdict, replace
+from dataclasses import asdict
 
 import click
 
@@ -106,7 +106,7 @@ def online_from(kw: dict) -> None:
               help="The model: the paper's CNN; patch (a stride-4 patchify stem: full-resolution detail at a "
                    "third of the paper CNN's cost at quarter size); plumbline (the classical floor: line "
                    "curvature and a ridge solved in closed form on --steps batches; no gradient steps). "
-                   "benchmarks/detector.py compares them.")
+                   "`python -m studies.detector` compares them.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @online_options
 def fit(**kw) -> None:
@@ -119,66 +119,6 @@ def fit(**kw) -> None:
         click.echo(json.dumps(summary))
 
 
-def _sized(name: str, help_text: str, **kw):
-    """An experiment option whose default lives in ExperimentOptions (shown in the help, applied there)."""
-    from train.experiment import ExperimentOptions
-
-    attr = name.lstrip("-").replace("-", "_")
-    default = getattr(ExperimentOptions(), "image_format" if attr == "format" else attr, None)
-    shown = f" [default: {default}]" if default is not None else ""
-    return click.option(name, attr, default=None, help=help_text + shown, **kw)
-
-
-@cli.command()
-@_sized("--out", "Run folder (runs/paper-scale-tiny with --tiny).")
-@click.option("--tiny", is_flag=True, help="Small sizes for 2 CPU cores (< 3 min): proves the chain, not the quality.")
-@_sized("--frames", "Train frames.", type=click.IntRange(1))
-@_sized("--val-frames", "Validation frames (a third seed).", type=click.IntRange(1))
-@_sized("--test-frames", "Test frames (a second seed).", type=click.IntRange(1))
-@_sized("--samples", "Train samples; val and test frames get as many per frame.", type=click.IntRange(1))
-@_sized("--scale", "Camera scale: 1 = 1392x512, 0.25 = 348x128.", type=float)
-@_sized("--format", "Shard image encoding.", type=click.Choice(["png", "npy"]))
-@_sized("--minutes", "Fit's wall-clock budget.", type=click.FloatRange(0, min_open=True))
-@_sized("--steps", "A step budget instead of --minutes.", type=click.IntRange(1))
-@_sized("--batch", "Images per step.", type=click.IntRange(1))
-@_sized("--lr", "Adam learning rate.", type=float)
-@_sized("--normalize", "Input normalisation.", type=click.Choice(["channel", "pixel"]))
-@_sized("--jobs", "Synth and build processes [default: all cores].", type=click.IntRange(1))
-@_sized("--workers", "DataLoader workers [default: all cores on CUDA, 1 on CPU].", type=click.IntRange(0))
-@_sized("--device", "auto, cpu or cuda.", type=click.Choice(["auto", "cpu", "cuda"]))
-@_sized("--seed", "Seed of frames, samples, weights and data order.", type=int)
-@_sized("--mount", "Synthetic camera pose spread (appdgen synth --mount).", type=click.Choice(["car", "loose"]))
-@click.option("--offline", is_flag=True,
-              help="Build every split and fit on the shards, instead of fit --online on fresh pairs of the frames.")
-@_sized("--model", "fit --model.", type=click.Choice(list(MODELS)))
-@click.option("--detector", is_flag=True,
-              help="Run the detector comparison instead (train.detector: every arm × target on --samples fresh pairs "
-                   "each, tested on the training views, a new viewpoint and unseen streets); prints its table.")
-@click.option("--overwrite", is_flag=True, help="Replace a previous run in --out.")
-@click.option("--quiet", is_flag=True, help="No progress lines.")
-def experiment(tiny: bool, offline: bool, detector: bool, **kw) -> None:
-    """Synthesize full-size KITTI 02 frames, fit the paper's CNN on fresh pairs of them (or --offline on a build),
-    evaluate on built test frames; prints one line."""
-    from train.experiment import ExperimentOptions, run, summary_line, tiny as tiny_sizes
-
-    given = {k: v for k, v in kw.items() if v is not None}
-    if "steps" in given:
-        given["minutes"] = None
-    opts = ExperimentOptions(online=not offline, **{"image_format" if k == "format" else k: v for k, v in given.items()})
-    if detector:
-        from train.detector import table
-        from train.experiment import detector_options, run_detector
-
-        o = detector_options(opts, tiny)
-        # explicit sizes win over --tiny's
-        o = replace(o, **{k: v for k, v in {"frames": given.get("frames"), "images": given.get("samples")}.items()
-                          if v is not None})
-        click.echo(table(run_detector(o)["rows"]))
-        return
-    result = run(tiny_sizes(opts) if tiny else opts)
-    click.echo(summary_line(result))
-
-
 @cli.command()
 @click.option("--ckpt", required=True, help="Checkpoint (.pt) written by fit.")
 @click.option("--shards", default=None, help="Folder written by `appdgen build`.")
@@ -189,7 +129,7 @@ def experiment(tiny: bool, offline: bool, detector: bool, **kw) -> None:
 @click.option("--length", default=10, show_default=True, type=click.IntRange(1), help="--frames: frames a sequence.")
 @click.option("--sequences", type=click.IntRange(1), help="--frames: most sequences [default: as the frames allow].")
 @click.option("--draw-seed", type=int, help="--frames: seed of the sequences' miscalibrations [default: the "
-                                            "detector benchmark's, train.detector.SEQUENCE_SEED].")
+                                            "detector comparison's, train.scoring.SEQUENCE_SEED].")
 @click.option("--split", default="test", show_default=True)
 @click.option("--json", "json_path", help="Also write the metrics to this JSON file.")
 @click.option("--plot", "plot_path", help="Predicted-vs-true APPD plot (PNG; needs matplotlib).")
@@ -204,6 +144,7 @@ def evaluate(ckpt: str, shards: str | None, frames: str | None, length: int, seq
     """MAE, RMSE, mean-predictor MAE, per-bin MAE and P/R/F1 of a checkpoint on one split (JSON); with --frames,
     on sequences of unseen raw frames, per frame and per sequence."""
     from train.evaluate import evaluate as run_eval, evaluate_frames
+    from train.scoring import summary_line
 
     if (shards is None) == (frames is None):
         raise TrainError("give --shards (a build and its --split) or --frames (raw frames of a fit --online run)")
@@ -215,22 +156,7 @@ def evaluate(ckpt: str, shards: str | None, frames: str | None, length: int, seq
     else:
         result = run_eval(ckpt, shards, split, json_path, plot_path, threshold, batch, workers, device, precision)
     click.echo(json.dumps(result, indent=1))
-    click.echo(summary_line(result), err=True)
-
-
-def summary_line(result: dict) -> str:
-    """'split: MAE … vs mean predictor … (ratio …)' in % of the diagonal, for a human reading the run."""
-    ratio = result["mae_vs_mean_predictor"]
-    target = "" if result["target"] == "appd" else f" ({result['label']})"
-    line = (f"evaluate: {result['split']}{target} MAE {result['mae']:.3f} % vs mean-predictor MAE "
-            f"{result['mean_predictor_mae']:.3f} % (ratio {'n/a' if ratio is None else f'{ratio:.2f}'}) "
-            f"on {result['n']} images")
-    seq = result.get("sequences")
-    if seq:  # evaluate --frames
-        line += (f"; per sequence of {seq['length']} (one miscalibration, {seq['count']} sequences): mean "
-                 f"prediction {seq['mean_vs_mean_predictor']:.2f}, median {seq['median_vs_mean_predictor']:.2f} "
-                 f"× the mean predictor's MAE")
-    return line
+    click.echo(f"evaluate: {summary_line(result)}", err=True)
 
 
 @cli.command()
@@ -318,8 +244,10 @@ def user_errors() -> tuple[type[Exception], ...]:
     return (TrainError, AppdgenError)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Entry point: one-line errors with exit status 2, and a clear message when torch is missing."""
+def main(argv: list[str] | None = None, command: click.Command | None = None, prog_name: str = "python -m train"
+         ) -> None:
+    """Entry point of the trainer's CLI (or of `command`, e.g. a study's): one-line errors with exit status 2, and a
+    clear message when torch is missing."""
     try:
         import torch  # noqa: F401 - only to give a clear message
     except ImportError:
@@ -327,7 +255,7 @@ def main(argv: list[str] | None = None) -> None:
                    err=True)
         sys.exit(2)
     try:
-        cli.main(args=argv, prog_name="python -m train", standalone_mode=False)
+        (command or cli).main(args=argv, prog_name=prog_name, standalone_mode=False)
     except click.exceptions.Abort:
         sys.exit(130)
     except click.ClickException as exc:

@@ -14,8 +14,8 @@ from train.data import Selection, StreamSpec, make_loader, open_shards, read_lab
 from train.errors import TrainError
 from train.loop import to_input
 from train.model import AppdNet
-
-N_BINS = 10
+from train.scoring import (SEQUENCE_SEED, THRESHOLD as DETECTION_THRESHOLD, bin_edges, bin_index, metrics,
+                           sequence_metrics, sequence_pairs)
 
 
 @torch.no_grad()
@@ -33,57 +33,6 @@ def predict_split(model: AppdNet, loader, device: torch.device, dtype) -> tuple[
     if not keys:
         raise TrainError("no samples to evaluate")
     return keys, np.concatenate(true).astype(float), np.concatenate(pred).astype(float)
-
-
-def bin_edges(appd_max: float, n_bins: int = N_BINS) -> np.ndarray:
-    """n_bins + 1 equal-width edges over [0, appd_max] (APPD %)."""
-    return np.linspace(0.0, appd_max, n_bins + 1)
-
-
-def bin_index(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Bin of each value; values past the last edge go to the last bin, below 0 to the first."""
-    return np.clip(np.searchsorted(edges, values, side="right") - 1, 0, len(edges) - 2)
-
-
-def per_bin(y_true: np.ndarray, y_pred: np.ndarray, edges: np.ndarray) -> list[dict]:
-    """MAE and mean prediction per true-APPD bin (null where a bin is empty)."""
-    idx = bin_index(y_true, edges)
-    rows = []
-    for b in range(len(edges) - 1):
-        m = idx == b
-        n = int(m.sum())
-        rows.append({
-            "lo": float(edges[b]), "hi": float(edges[b + 1]), "n": n,
-            "mae": float(np.abs(y_pred[m] - y_true[m]).mean()) if n else None,
-            "pred_mean": float(y_pred[m].mean()) if n else None,
-        })
-    return rows
-
-
-def classification(y_true: np.ndarray, y_pred: np.ndarray, threshold: float) -> dict:
-    """Precision, recall and F1 of 'APPD > threshold' (null where a ratio is 0/0)."""
-    t, p = y_true > threshold, y_pred > threshold
-    tp, fp, fn = int((t & p).sum()), int((~t & p).sum()), int((t & ~p).sum())
-    precision = tp / (tp + fp) if tp + fp else None
-    recall = tp / (tp + fn) if tp + fn else None
-    f1 = 2 * precision * recall / (precision + recall) if precision and recall else (0.0 if tp + fp + fn else None)
-    return {"threshold": threshold, "precision": precision, "recall": recall, "f1": f1,
-            "tp": tp, "fp": fp, "fn": fn, "tn": int((~t & ~p).sum())}
-
-
-def metrics(y_true: np.ndarray, y_pred: np.ndarray, label_mean: float, appd_max: float, threshold: float) -> dict:
-    """MAE, RMSE, the mean predictor's MAE, per-bin MAE and threshold classification (APPD %)."""
-    err = y_pred - y_true
-    mae = float(np.abs(err).mean())
-    base = float(np.abs(label_mean - y_true).mean())
-    return {
-        "n": int(len(y_true)), "mae": mae, "rmse": float(np.sqrt((err**2).mean())),
-        "median_abs_error": float(np.median(np.abs(err))),
-        "mean_predictor_mae": base, "mae_vs_mean_predictor": mae / base if base > 0 else None,
-        "train_label_mean": label_mean, "appd_max": appd_max,
-        "bins": per_bin(y_true, y_pred, bin_edges(appd_max)),
-        "classification": classification(y_true, y_pred, threshold),
-    }
 
 
 def plot(y_true: np.ndarray, y_pred: np.ndarray, appd_max: float, threshold: float, path: Path, title: str,
@@ -177,11 +126,9 @@ def evaluate_frames(ckpt_path: str, frames: str, length: int = 10, sequences: in
                     batch: int = 32, device: str = "auto", precision: str = "fp32") -> dict:
     """Score a fit --online checkpoint on raw frames it has not seen, per frame and per sequence: sequence k is
     frames k·length … k·length + length − 1 (in file order) under one miscalibration, the fixed-seed draw
-    (draw_seed, k) of the fit's own calibration and sampling (train.detector.sequence_pairs, as the detector
-    benchmark's axes); the sequence's mean and median prediction are scored against its label (ratios to the mean
+    (draw_seed, k) of the fit's own calibration and sampling (train.scoring.sequence_pairs, as the detector
+    comparison's axes); the sequence's mean and median prediction are scored against its label (ratios to the mean
     predictor's MAE)."""
-    from train.detector import SEQUENCE_SEED, THRESHOLD as DETECTION_THRESHOLD, metrics as sequence_metrics
-    from train.detector import sequence_pairs
     from train.online.recipe import decode_frames
 
     if length < 1:

@@ -1,5 +1,6 @@
-"""The training loop both fits drive (offline shards, online pairs): Adam on MSE(APPD %), log rows, validation,
-checkpoints, a wall-clock deadline and the run's step count and resume rule."""
+"""The project's one training loop, which every fit drives (offline shards, online pairs, the studies' arms): Adam
+on MSE of the target, log rows, validation, checkpoints, a wall-clock deadline and the run's step count and resume
+rule."""
 from __future__ import annotations
 
 import contextlib
@@ -91,6 +92,11 @@ def check_shapes(pred: torch.Tensor, target: torch.Tensor) -> None:
                          "the loss would broadcast over pairs of images")
 
 
+def adam(params, lr: float) -> torch.optim.Optimizer:
+    """The project's one optimiser (every fit, and the benchmarks that time a step): Adam at learning rate lr."""
+    return torch.optim.Adam(params, lr=lr)
+
+
 def train_step(net: torch.nn.Module, opt: torch.optim.Optimizer, batch: dict, device: torch.device,
                dtype: torch.dtype | None) -> torch.Tensor:
     """One Adam step on MSE(pred, appd_pct); returns the detached loss (no host sync)."""
@@ -137,7 +143,7 @@ class Trainer:
         self.model = checkpoint.build_model(state).to(device).to(memory_format=torch.channels_last).train()
         params = list(self.model.parameters())
         # A model without parameters (the plumb-line floor) is solved in closed form: no optimiser.
-        self.opt = torch.optim.Adam(params, lr=opts.lr) if params else None
+        self.opt = adam(params, opts.lr) if params else None
         if state["optimizer"] is not None and self.opt is not None:
             self.opt.load_state_dict(state["optimizer"])
             for group in self.opt.param_groups:

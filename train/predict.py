@@ -14,16 +14,14 @@ import numpy as np
 import torch
 
 from appdgen.errors import AppdgenError
-from appdgen.sources.decode import as_channels, decode_bytes
+from appdgen.sources.decode import as_channels, read_image
+from appdgen.sources.files import IMAGE_SUFFIXES, list_images
+from appdgen.sources.frames import RawImage
 from train import checkpoint, runtime
-from appdgen.dataset.layout import FORMATS
-from appdgen.sources.files import IMAGE_SUFFIXES
 from train.errors import TrainError
 from train.model import AppdNet
 
 Preprocess = Callable[[np.ndarray, str], np.ndarray]
-#: What a folder given to predict is listed for: raw camera images, and images as a build encodes them (.npy too).
-IMAGES = frozenset((*IMAGE_SUFFIXES, *FORMATS.values()))
 #: One image of the sequence: its name, its timestamp (ns, frames of recordings) or None, and its decoder.
 Item = tuple[str, "int | None", Callable[[], np.ndarray]]
 
@@ -39,19 +37,15 @@ class Prediction:
     timestamp_ns: int | None = field(default=None, kw_only=True)  # frames of a recording: when it was taken
 
 
-def list_images(inputs: list[str]) -> list[Path]:
-    """Files as given, folders expanded to their images sorted by name (the sequence order)."""
-    paths: list[Path] = []
-    for item in map(Path, inputs):
-        if item.is_dir():
-            paths += sorted(p for p in item.iterdir() if p.suffix.lower() in IMAGES)
-        elif item.is_file():
-            paths.append(item)
-        else:
-            raise TrainError(f"{item}: no such image or folder")
-    if not paths:
-        raise TrainError(f"no images found in {', '.join(inputs)}")
-    return paths
+def image_files(inputs: list[str]) -> list[RawImage]:
+    """The images the inputs name, in order: an image file as itself, else what appdgen.sources.files.list_images
+    reads (a folder, recursively, a glob or a list file; its one-line errors)."""
+    found: list[RawImage] = []
+    for spec in inputs:
+        path = Path(spec)
+        is_image = path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES
+        found += [RawImage(path, path.name, "none")] if is_image else list_images(spec)
+    return found
 
 
 @dataclass(frozen=True)
@@ -74,13 +68,13 @@ def sequence(inputs: list[str], frames: PredictFrames, calib: str | None, camera
     from appdgen.sources.recordings import is_recording
 
     if not any(is_recording(Path(i)) for i in inputs):
-        for path in list_images(inputs):
+        for path in (i.path for i in image_files(inputs)):
             if not frames.skip_bad:
                 yield str(path), None, partial(read_image, path)
                 continue
             try:
                 image = read_image(path)
-            except TrainError as exc:  # a corrupt JPEG body, an unreadable file: counted, not fatal
+            except AppdgenError as exc:  # a corrupt JPEG body, an unreadable file: counted, not fatal
                 frames.skipped.append(str(exc))
                 continue
             yield str(path), None, partial(np.asarray, image)
@@ -109,21 +103,6 @@ def recording_items(path: Path, frames: PredictFrames, calib: str | None, camera
             frames.skipped.append(str(exc))
             continue
         yield frame.name, frame.timestamp_ns, partial(np.asarray, image)
-
-
-def read_image(path: Path) -> np.ndarray:
-    """H×W×3 uint8 in OpenCV's BGR order (.npy taken as stored, like the shards); a corrupt JPEG body is refused
-    (sources.decode.decode_bytes), not read as grey rows."""
-    if path.suffix.lower() == FORMATS["npy"]:
-        img = np.load(path, allow_pickle=False)
-    else:
-        try:
-            img = decode_bytes(path.read_bytes(), str(path), 3)
-        except (AppdgenError, OSError) as exc:
-            raise TrainError(str(exc) if isinstance(exc, AppdgenError) else f"{path}: {exc.strerror or exc}") from None
-    if img is None or img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
-        raise TrainError(f"{path}: not a readable 3-channel 8-bit image")
-    return img
 
 
 def size_check(size: tuple[int, int], resize: bool) -> Preprocess:

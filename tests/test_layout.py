@@ -16,16 +16,18 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "appdgen"
 TRAINER = ROOT / "train"
-PACKAGES = ("appdgen", "train")
+STUDIES = ROOT / "studies"
+PACKAGES = ("appdgen", "train", "studies")
 #: The flow, ground first: a module may import its own stage and earlier ones only; synth and analysis sit side by
 #: side (neither imports the other); the package's own __init__/__main__ (the public names, python -m) are the top.
 #: sources (what turns --images into frames) sits below dataset: the build imports the frames, sources import
 #: nothing of the build folder. The trainer (train/) sits over the library and below appdgen's CLI, which it may
 #: not import; its own CLI (train.cli, train.__main__) sits over appdgen.cli, whose shared click options it reuses.
-#: appdgen imports nothing of train.
+#: appdgen imports nothing of train. The studies (studies/: research over the trainer and appdgen) are the top:
+#: nothing imports them.
 STAGES: dict[str, int] = {"errors": 0, "version": 0, "util": 1, "lens": 2, "calib": 3, "geometry": 4, "sampling": 5,
                           "sources": 6, "dataset": 7, "detect": 7, "synth": 8, "analysis": 8, "train": 9, "cli": 10,
-                          "train.cli": 11, "__init__": 12, "__main__": 12}
+                          "train.cli": 11, "__init__": 12, "__main__": 12, "studies": 13}
 #: What the ground may import of appdgen.
 GROUND: dict[str, set[str]] = {"errors": set(), "version": set(), "util": {"errors"}}
 LOOSE_ALLOWED = {"__init__", "__main__", "errors"}
@@ -35,6 +37,8 @@ def stage(module: str) -> str:
     """The stage of a dotted module ('appdgen.calib.formats' → 'calib'; 'appdgen' → '__init__'; 'train.fit' →
     'train'; 'train.cli', 'train.__main__' → 'train.cli')."""
     parts = module.split(".")
+    if parts[0] == "studies":
+        return "studies"
     if parts[0] == "train":
         return "train.cli" if parts[1:2] in (["cli"], ["__main__"]) else "train"
     return parts[1] if len(parts) > 1 else "__init__"
@@ -55,7 +59,7 @@ def imported(path: Path) -> set[str]:
     `from appdgen import x` counts as appdgen.x when x is a subpackage or module, else as the package's own
     __init__ (and so for train)."""
     names: set[str] = set()
-    known = modules((PACKAGE, TRAINER))
+    known = modules((PACKAGE, TRAINER, STUDIES))
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
             names |= {a.name for a in node.names if a.name.split(".")[0] in PACKAGES}
@@ -68,8 +72,8 @@ def imported(path: Path) -> set[str]:
 
 
 def import_graph() -> dict[str, set[str]]:
-    """Module → the modules it imports, over appdgen and train."""
-    return {name: imported(path) for name, path in modules((PACKAGE, TRAINER)).items()}
+    """Module → the modules it imports, over appdgen, train and studies."""
+    return {name: imported(path) for name, path in modules((PACKAGE, TRAINER, STUDIES)).items()}
 
 
 def circles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -119,7 +123,7 @@ def test_the_stage_table_names_every_folder_and_loose_module() -> None:
 
 def test_no_module_imports_from_a_later_stage() -> None:
     upward = []
-    for name, path in modules((PACKAGE, TRAINER)).items():
+    for name, path in modules((PACKAGE, TRAINER, STUDIES)).items():
         mine = stage(name)
         for target in imported(path):
             theirs = stage(target)
@@ -168,6 +172,31 @@ def test_the_trainer_is_under_the_stage_order() -> None:
     assert any(stage(name) == "train" for name in graph)
     assert not [(n, t) for n, ts in graph.items() for t in ts if stage(n) == "train" and stage(t) == "cli"]
     assert not [(n, t) for n, ts in graph.items() for t in ts if n.startswith("appdgen") and t.startswith("train")]
+
+
+def test_the_studies_sit_on_top_and_nothing_imports_them() -> None:
+    # Research imports the product, never the reverse: no appdgen or train module imports studies/, and what
+    # evaluate reports (train.scoring) is the trainer's, so editing a study cannot change `evaluate`.
+    graph = import_graph()
+    assert {"studies.detector", "studies.experiment"} <= set(graph)
+    assert any(t.startswith("train") for t in graph["studies.detector"])
+    assert not [(n, t) for n, ts in graph.items() for t in ts if not n.startswith("studies") and t.startswith("studies")]
+    assert not [t for t in graph["train.evaluate"] if t.startswith("studies")]
+    assert "train.scoring" in graph["train.evaluate"]
+
+
+def test_the_package_list_installs_appdgen_alone() -> None:
+    # train/ and studies/ are folders of the repository, run from its root (python -m train): nothing installs a
+    # generic top-level `train` into site-packages (issue 31).
+    import tomllib
+
+    from setuptools import find_packages
+
+    find = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]
+    installed = find_packages(str(ROOT), include=find["include"], exclude=find.get("exclude", ()))
+    assert "appdgen" in installed and "appdgen.cli" in installed
+    assert not [p for p in installed if p.split(".")[0] != "appdgen"], installed
+    assert "train" in find_packages(str(ROOT), include=["appdgen*", "train*"])  # the check can fail: the old list
 
 
 def test_no_import_circle_not_even_inside_a_folder() -> None:

@@ -323,6 +323,40 @@ def test_predict_a_folder_as_csv_and_json(trained, shards, tmp_path, capsys):
     assert out["summary"]["verdict"] == "recalibrate" and out["summary"]["images"] == 10
 
 
+def test_predict_reads_globs_and_list_files_as_build_does_and_names_a_bad_path(trained, shards, tmp_path, capsys):
+    # predict lists its inputs through appdgen.sources, as build's --images: a glob, a list file (paths relative to
+    # it, in its order), and the sources' one-line error for a path that is none of them.
+    paths = extract_pngs(shards, tmp_path / "seq", n=4)
+    ckpt = trained / "last.pt"
+    by_glob = json.loads(run_cli(["predict", "--ckpt", ckpt, tmp_path / "seq" / "*.png", "--json"], capsys))
+    listing = tmp_path / "frames.txt"
+    listing.write_text("".join(f"seq/{p.name}\n" for p in reversed(paths)))
+    by_list = json.loads(run_cli(["predict", "--ckpt", ckpt, listing, "--json"], capsys))
+    assert [p["path"] for p in by_glob["predictions"]] == [str(p) for p in sorted(paths)]
+    assert [p["path"] for p in by_list["predictions"]] == [str(p) for p in reversed(paths)]
+    assert {p["path"]: p["appd_pct"] for p in by_glob["predictions"]} == \
+        {p["path"]: p["appd_pct"] for p in by_list["predictions"]}
+    with pytest.raises(SystemExit) as exc:
+        run_cli(["predict", "--ckpt", ckpt, tmp_path / "nowhere"], capsys)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1
+    assert f"{tmp_path / 'nowhere'}: no such folder, list file or glob pattern" in err
+
+
+def test_python_m_train_runs_from_the_repository_root():
+    # The trainer is a folder of the repository, not an installed package: `python -m train` from its root.
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    helps = {}
+    for module in ("train", "studies.experiment", "studies.detector"):
+        done = subprocess.run([sys.executable, "-m", module, "--help"], cwd=root, capture_output=True, text=True)
+        assert done.returncode == 0, (module, done.stderr)
+        helps[module] = done.stdout
+    assert all(f"  {command} " in helps["train"] for command in ("fit", "evaluate", "predict", "export"))
+    assert "--tiny" in helps["studies.experiment"] and "--arms" in helps["studies.detector"]
+
+
 def test_predict_names_a_corrupt_jpeg_or_skips_and_counts_it(trained, shards, tmp_path, capsys):
     paths = extract_pngs(shards, tmp_path / "seq", n=4)
     data = bytearray(cv2.imencode(".jpg", cv2.imread(str(paths[1])), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes())

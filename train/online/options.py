@@ -14,10 +14,6 @@ from train.errors import TrainError
 
 #: --render choices: auto = device on CUDA (when its interpolation exists there), else cpu.
 RENDERS = ("auto", "cpu", "device")
-#: The seed of the validation pairs: fixed, not the run's, so that every run validates on the same images.
-VAL_SEED = 2**31 - 1
-#: Third SeedSequence word of the frame choice (the sampler's own draw uses [seed, i]).
-FRAME_STREAM = 1
 
 
 @dataclass(frozen=True)

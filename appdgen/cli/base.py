@@ -92,9 +92,6 @@ IMAGES_HELP = ("Raw images: a folder (recursive), a glob pattern, or a list file
 images_option = click.option("--images", "images_spec", required=True, help=IMAGES_HELP)
 
 
-quiet_option = click.option("--quiet", is_flag=True, help="No progress line.")
-
-
 def split_by_option(command: Callable) -> Callable:
     """--split-by: the split column from each raw image's path (build's, and fit --online's holdout)."""
     from appdgen.sources.files import SPLIT_BY

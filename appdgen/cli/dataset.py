@@ -13,7 +13,7 @@ from appdgen.cli.base import (
     recording_options,
     sampling_options,
     split_by_option,
-    IMAGES_HELP,
+    images_option,
     load_calibration,
     calib_option,
     camera_option,
@@ -34,7 +34,7 @@ VERIFY_LINES = 20  # problems printed; the rest are counted
 @main.command()
 @calib_option
 @camera_option
-@click.option("--images", "images_spec", required=True, help=IMAGES_HELP)
+@images_option
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--samples", type=int, default=None, help="Total samples [default: 10 per image].")
 @click.option("--per-image", type=int, default=None, help="Samples per raw image (instead of --samples).")

@@ -23,7 +23,6 @@ from appdgen.cli.base import (
     max_fov_option,
     modified,
     perturb_option,
-    quiet_option,
     recording_options,
     set_option,
 )
@@ -206,7 +205,7 @@ def closing_line(info: dict, json_path: str | None) -> str:
 @calib_option
 @camera_option
 @images_option
-@click.option("--sequence", default=DEFAULT_SEQUENCE, show_default=True, type=click.IntRange(min=1),
+@click.option("--sequence", default=DEFAULT_SEQUENCE, show_default=True, type=click.IntRange(min=1), metavar="N",
               help="Frames pooled per sequence: consecutive groups of N (the last holds what is left).")
 @click.option("--threshold", "threshold_pct", default=DEFAULT_THRESHOLD_PCT, show_default=True, metavar="PCT",
               type=click.FloatRange(min=0.0, min_open=True),
@@ -225,7 +224,7 @@ def closing_line(info: dict, json_path: str | None) -> str:
 @click.option("--skip-bad", is_flag=True,
               help="Skip frames of the wrong size, truncated or unreadable (listed in the JSON summary); else the "
                    "first is an error.")
-@quiet_option
+@click.option("--quiet", is_flag=True, help="No progress line and no per-frame lines: only the sequences.")
 @fail_cleanly
 def detect(calib_path, camera, images_spec, sequence, threshold_pct, baseline_path, save_path, json_path, sets,
            perturbs, max_fov, topic, every, min_interval, start, end, skip_bad, quiet):

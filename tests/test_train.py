@@ -23,7 +23,7 @@ from train.data import (  # noqa: E402
 from train.holdout import held_out, holdout_group, holdout_unit  # noqa: E402
 from train.errors import TrainError  # noqa: E402
 from train.model import AppdNet, ModelConfig, check_size  # noqa: E402
-from train.predict import running_verdicts  # noqa: E402
+from train.predict import RunningVerdict  # noqa: E402
 from synthetic_shards import write_shards  # noqa: E402
 
 STEPS = 30
@@ -383,7 +383,8 @@ def test_predict_refuses_wrong_size_without_calib(trained, tmp_path, capsys):
 
 
 def test_running_median_verdict():
-    preds = running_verdicts([Path(f"{i}") for i in range(5)], [0.1, 3.0, 0.2, 3.0, 3.0], 3, 1.0)
+    verdicts = RunningVerdict(3, 1.0)
+    preds = [verdicts.add(str(i), v) for i, v in enumerate([0.1, 3.0, 0.2, 3.0, 3.0])]
     assert [p.running_median for p in preds] == [0.1, 1.55, 0.2, 3.0, 3.0]
     assert [p.recalibrate for p in preds] == [False, True, False, True, True]
 

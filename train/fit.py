@@ -229,14 +229,8 @@ class ShardTrainer(Trainer):
         spec = StreamSpec(self.ss.for_split(sel.split), sel, self.size, labels=self.plan.labels)
         return make_loader(spec, self.opts.batch, self.opts.workers)
 
-    def announce(self, step: int, steps: int) -> None:
-        """One stderr line saying what this run does."""
-        if self.rank != 0 or self.opts.quiet:
-            return
-        p, cfg = self.plan, self.model.cfg
+    def describe(self) -> str:
+        """'fit: train …, val …' of the shards."""
+        p = self.plan
         val = f"{p.val.describe()} ({p.n_val} samples)" if p.val else "none"
-        print(f"fit: {cfg.width}x{cfg.height} px, {TARGETS[self.opts.target]}, train {p.train.describe()} "
-              f"({p.n_train} samples), "
-              f"val {val}, steps {step}→{steps}, "
-              f"batch {self.opts.batch}×{self.world}, {self.device}, autocast {self.dtype or 'off'}, "
-              f"{torch.get_num_threads()} threads", file=sys.stderr)
+        return f"fit: train {p.train.describe()} ({p.n_train} samples), val {val}"

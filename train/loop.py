@@ -16,7 +16,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from appdgen.dataset.layout import BUILD_JSON, INDEX
+from appdgen.dataset.layout import BUILD_JSON, INDEX, TARGETS
 from appdgen.util.progress import Progress
 from train import checkpoint, runtime
 from train.errors import TrainError
@@ -244,7 +244,16 @@ class Trainer:
         return row
 
     def announce(self, step: int, steps: int) -> None:
-        """One stderr line saying what this run does (rank 0, unless --quiet)."""
+        """One stderr line saying what this run does (rank 0, unless --quiet): its data (describe) and its loop."""
+        if self.rank != 0 or self.opts.quiet:
+            return
+        cfg = self.model.cfg
+        print(f"{self.describe()}, {cfg.width}x{cfg.height} px, {TARGETS[self.opts.target]}, steps {step}→{steps}, "
+              f"batch {self.opts.batch}×{self.world}, {self.device}, autocast {self.dtype or 'off'}, "
+              f"{torch.get_num_threads()} threads, {self.opts.workers} loader workers", file=sys.stderr)
+
+    def describe(self) -> str:
+        """'fit: train …, val …': the command and what this run trains and validates on."""
         raise NotImplementedError
 
     def validate(self, step: int) -> dict:

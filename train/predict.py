@@ -68,20 +68,11 @@ def sequence(inputs: list[str], frames: PredictFrames, calib: str | None, camera
     from appdgen.sources.recordings import is_recording
 
     if not any(is_recording(Path(i)) for i in inputs):
-        for path in (i.path for i in image_files(inputs)):
-            if not frames.skip_bad:
-                yield str(path), None, partial(read_image, path)
-                continue
-            try:
-                image = read_image(path)
-            except AppdgenError as exc:  # a corrupt JPEG body, an unreadable file: counted, not fatal
-                frames.skipped.append(str(exc))
-                continue
-            yield str(path), None, partial(np.asarray, image)
+        yield from checked(((str(i.path), None, partial(read_image, i.path)) for i in image_files(inputs)), frames)
         return
     if len(inputs) != 1:
         raise TrainError(f"predict reads one recording at a time, got {', '.join(inputs)}")
-    yield from recording_items(Path(inputs[0]), frames, calib, camera)
+    yield from checked(recording_items(Path(inputs[0]), frames, calib, camera), frames)
 
 
 def recording_items(path: Path, frames: PredictFrames, calib: str | None, camera: str | None) -> Iterator[Item]:
@@ -94,15 +85,22 @@ def recording_items(path: Path, frames: PredictFrames, calib: str | None, camera
     choice = FrameChoice(frames.every, frames.min_interval, frames.start, frames.end)
     topic = choose_topic(path, frames.topic, calibration_topic(calib, camera) if calib else None)
     for frame, decode in stream(path, topic, choice):
+        yield frame.name, frame.timestamp_ns, decode
+
+
+def checked(items: Iterable[Item], frames: PredictFrames) -> Iterator[Item]:
+    """The items as they are; with --skip-bad each decoded now, and an undecodable one (a corrupt JPEG body, an
+    unreadable file) counted in frames.skipped instead of refused."""
+    for name, stamp, decode in items:
         if not frames.skip_bad:
-            yield frame.name, frame.timestamp_ns, decode
+            yield name, stamp, decode
             continue
         try:
             image = decode()
         except AppdgenError as exc:
             frames.skipped.append(str(exc))
             continue
-        yield frame.name, frame.timestamp_ns, partial(np.asarray, image)
+        yield name, stamp, partial(np.asarray, image)
 
 
 def size_check(size: tuple[int, int], resize: bool) -> Preprocess:
@@ -181,12 +179,6 @@ def run_model(model: AppdNet, images: torch.Tensor, device: torch.device) -> lis
     return model(x).float().cpu().tolist()
 
 
-def running_verdicts(paths: list[Path], values: list[float], window: int, threshold: float) -> list[Prediction]:
-    """Median of the last `window` predictions and 'recalibrate' when it exceeds threshold (APPD %)."""
-    verdicts = RunningVerdict(window, threshold)
-    return [verdicts.add(str(path), v) for path, v in zip(paths, values)]
-
-
 class RunningVerdict:
     """The running median of the last `window` predictions, and 'recalibrate' when it exceeds threshold (APPD %)."""
 
@@ -199,15 +191,6 @@ class RunningVerdict:
         self.recent.append(value)
         med = statistics.median(self.recent)
         return Prediction(path, value, med, med > self.threshold, timestamp_ns=timestamp_ns)
-
-
-def predict(ckpt_path: str, inputs: list[str], calib: str | None = None, camera: str | None = None,
-            threshold: float = 1.0, window: int = 9, batch: int = 32, resize: bool = False,
-            device: str = "auto", max_fov: float | None = None,
-            frames: PredictFrames | None = None) -> list[Prediction]:
-    """Predictions over a sequence of images, in order (max_fov: degrees, only for a checkpoint without one)."""
-    return list(predict_stream(ckpt_path, inputs, calib, camera, threshold, window, batch, resize, device, max_fov,
-                               frames))
 
 
 def trained_target(ckpt_path: str) -> str:

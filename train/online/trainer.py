@@ -2,7 +2,6 @@
 loop (train.loop.Trainer) it feeds."""
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -152,15 +151,9 @@ class OnlineTrainer(Trainer):
         """The validation batches (fixed-seed pairs rendered once, or the offline build)."""
         return self.data.val_batches()
 
-    def announce(self, step: int, steps: int) -> None:
-        """One stderr line saying what this run does."""
-        if self.rank != 0 or self.opts.quiet:
-            return
-        p, cfg = self.plan, self.model.cfg
-        print(f"fit --online: {cfg.width}x{cfg.height} px, {checkpoint.check_target(self.opts.target)}, train "
-              f"{p.train}, val {p.val or 'none'}, steps {step}→{steps}, batch {self.opts.batch}×{self.world}, "
-              f"{self.device}, autocast {self.dtype or 'off'}, "
-              f"{torch.get_num_threads()} threads, {self.opts.workers} loader workers", file=sys.stderr)
+    def describe(self) -> str:
+        """'fit --online: train …, val …' of the pairs."""
+        return f"fit --online: train {self.plan.train}, val {self.plan.val or 'none'}"
 
     def summary(self, step: int, loss: float | None, val: dict) -> dict:
         """fit's summary plus the data feed's report (wait fraction, draw and render ms per image)."""

@@ -138,6 +138,20 @@ def test_a_glob_and_a_folder_read_the_same_frames_as_the_list(street: Street, tm
         assert entry["appd_pct"] == listed[Path(entry["image"]).name]["appd_pct"]
 
 
+def test_a_bag_of_the_same_frames_reads_as_the_png_files(street: Street, tmp_path: Path):
+    pytest.importorskip("rosbags")
+    result = run_cli(["synth", "--frames", "3", "--scale", "0.25", "--out", str(tmp_path), "--as", "bag", "--mono",
+                      "--quiet"])  # the street's first three frames (same seed), grey, on /cam0/image_raw
+    assert result.exit_code == 0, result.output
+    from_bag = read_json(street, tmp_path, images=str(tmp_path / "recording.bag"))
+    from_files = read_json(street, tmp_path, images=str(street.root / "raw"))
+    names = [f["image"] for f in from_bag["frames"]]
+    assert len(names) == 3 and all(n.startswith(f"{tmp_path / 'recording.bag'}/cam0/image_raw/") for n in names)
+    assert sorted(names) == names
+    for key in ("appd_pct", "bend_pct", "segments"):
+        assert [f[key] for f in from_bag["frames"]] == [f[key] for f in from_files["frames"][:3]]
+
+
 def test_the_baseline_round_trip_reads_as_the_library_does_with_that_file(street: Street, baseline: Path,
                                                                           tmp_path: Path):
     from appdgen.detect import Baseline, Detector

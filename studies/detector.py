@@ -43,6 +43,7 @@ import numpy as np
 from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
 from appdgen.sources.frames import RawImage
+from train.loop import Trainer  # torch: every study here fits networks
 from train.scoring import LABELS, SEQUENCE_SEED, make_pairs, sequence_metrics, sequence_pairs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -255,54 +256,54 @@ def axes(o: DetectorOptions) -> list[str]:
 # --- networks: fits of the trainer's one loop -------------------------------------------------------------
 
 
-def arm_trainer(arm: Arm, s: Stream, o: DetectorOptions, device, run: Path):
-    """The train.loop.Trainer of one network arm: o.images fresh pairs of the stream in batches of o.batch, its
-    target standardised by the first o.stats pairs (which also give the input normalisation)."""
-    from train.data import PixelStats
-    from train.fit import FitOptions
-    from train.loop import Trainer
-    from train.model import ModelConfig
-    from train.online.trainer import OnlinePlan
-    from train import checkpoint
+class ArmTrainer(Trainer):
+    """One network arm's fit, through the trainer's loop: o.images fresh pairs of the stream in batches of o.batch,
+    its target standardised by the first o.stats pairs (which also give the input normalisation); saved by
+    train.checkpoint to `run`."""
 
-    class ArmTrainer(Trainer):
-        """Trainer over the arm's pairs (finite: o.images of them); then the output line and its predictions."""
+    def __init__(self, arm: Arm, s: Stream, o: DetectorOptions, device, run: Path) -> None:
+        from train import checkpoint
+        from train.data import PixelStats
+        from train.fit import FitOptions
+        from train.model import ModelConfig
+        from train.online.trainer import OnlinePlan
 
-        def loader(self, step: int):
-            """Batches step … of the run's pairs, the target standardised (timed in data_s)."""
-            import torch
+        first = train_pairs(s, o.seed, 0, o.stats)
+        stats = PixelStats()
+        stats.add(first["image"])
+        mean, std, _ = stats.result()
+        y = first[arm.target].reshape(len(first["image"]), -1)
+        self.arm, self.stream, self.o, self.data_s = arm, s, o, 0.0
+        self.mean, self.std = y.mean(0), np.maximum(y.std(0), 1e-3)
+        self.label_mean = {t: float(first[t].mean()) for t in ("appd", "bend")}
+        _, _, h, w = first["image"].shape
+        cfg = ModelConfig(w, h, mean=tuple(mean), std=tuple(std), arch=arm.model,
+                          outputs=y.shape[1] if arm.target == "field" else 1)
+        steps = math.ceil(o.images / o.batch)
+        opts = FitOptions(shards=None, run=str(run), steps=steps, batch=o.batch, lr=o.lr, ckpt_every=steps,
+                          log_every=max(1, steps // 10), seed=o.seed, device=o.device, model=arm.model, quiet=True)
+        shutil.rmtree(run, ignore_errors=True)  # log.csv is appended to: a fresh run starts without one
+        run.mkdir(parents=True)
+        state = checkpoint.initial(cfg, o.seed, {"study": "detector", "arm": arm.name, "stream": arm.stream})
+        super().__init__(opts, OnlinePlan(f"{arm.stream} pairs", None, o.images, None), state, device, 0, 1, run)
 
-            for j in range(step, self.opts.steps):
-                t0 = time.process_time()
-                pairs = train_pairs(s, o.seed, j * o.batch, min(o.batch, o.images - j * o.batch))
-                y = (pairs[arm.target].reshape(len(pairs["image"]), -1) - self.mean) / self.std
-                label = torch.from_numpy(y.astype(np.float32))
-                self.data_s += time.process_time() - t0
-                yield {"image": torch.from_numpy(pairs["image"]), "label": label if arm.target == "field" else label[:, 0]}
+    def loader(self, step: int):
+        """Batches step … of the run's pairs, the target standardised (timed in data_s)."""
+        import torch
 
-        def announce(self, step: int, steps: int) -> None:
-            """One stderr line: which arm trains on how many pairs."""
-            print(f"detector {arm.stream}: {arm.name} on {o.images} pairs, {steps} steps of {o.batch}", file=sys.stderr)
+        o, target = self.o, self.arm.target
+        for j in range(step, self.opts.steps):
+            t0 = time.process_time()
+            pairs = train_pairs(self.stream, o.seed, j * o.batch, min(o.batch, o.images - j * o.batch))
+            y = torch.from_numpy(((pairs[target].reshape(len(pairs["image"]), -1) - self.mean) / self.std)
+                                 .astype(np.float32))
+            self.data_s += time.process_time() - t0
+            yield {"image": torch.from_numpy(pairs["image"]), "label": y if target == "field" else y[:, 0]}
 
-    first = train_pairs(s, o.seed, 0, o.stats)
-    stats = PixelStats()
-    stats.add(first["image"])
-    mean, std, _ = stats.result()
-    y = first[arm.target].reshape(len(first["image"]), -1)
-    _, _, h, w = first["image"].shape
-    cfg = ModelConfig(w, h, mean=tuple(mean), std=tuple(std), arch=arm.model,
-                      outputs=y.shape[1] if arm.target == "field" else 1)
-    steps = math.ceil(o.images / o.batch)
-    opts = FitOptions(shards=None, run=str(run), steps=steps, batch=o.batch, lr=o.lr, ckpt_every=steps,
-                      log_every=max(1, steps // 10), seed=o.seed, device=o.device, model=arm.model, quiet=True)
-    shutil.rmtree(run, ignore_errors=True)  # log.csv is appended to: a fresh run starts without one
-    run.mkdir(parents=True)
-    state = checkpoint.initial(cfg, o.seed, {"study": "detector", "arm": arm.name, "stream": arm.stream})
-    trainer = ArmTrainer(opts, OnlinePlan(f"{arm.stream} pairs", None, o.images, None), state, device, 0, 1, run)
-    trainer.arm, trainer.data_s = arm, 0.0
-    trainer.mean, trainer.std = y.mean(0), np.maximum(y.std(0), 1e-3)
-    trainer.label_mean = {t: float(first[t].mean()) for t in ("appd", "bend")}
-    return trainer
+    def announce(self, step: int, steps: int) -> None:
+        """One stderr line: which arm trains on how many pairs."""
+        print(f"detector {self.arm.stream}: {self.arm.name} on {self.o.images} pairs, {steps} steps of "
+              f"{self.o.batch}", file=sys.stderr)
 
 
 def read_off(trainer, images: np.ndarray, batch: int = 32) -> dict[str, np.ndarray]:
@@ -390,7 +391,7 @@ def run_stream(o: DetectorOptions, stream: str) -> dict:
     s = open_stream(o, stream)
     start, trainers = time.process_time(), []
     for a in (a for a in arms if a.model != "plumbline"):
-        trainer = arm_trainer(a, s, o, device, Path(o.out) / f"{stream}-{a.name.replace('/', '-')}")
+        trainer = ArmTrainer(a, s, o, device, Path(o.out) / f"{stream}-{a.name.replace('/', '-')}")
         trainer.train(trainer.opts.steps)
         trainers.append(trainer)
     train_s = time.process_time() - start

@@ -1,8 +1,8 @@
 """Time-boxed what-if fits: held in memory, the paper's CNN (or a variant) trains on a build and reports test MAE
-against the mean predictor every minute. For quick experiments on what makes APPD learnable; `python -m train fit`
-is the trainer.
+against the mean predictor every --val-every steps. For quick experiments on what makes APPD learnable; the fit is
+the trainer's one loop (train.loop.Trainer) over the split held in memory, its run in --run.
 
-    python benchmarks/learnability.py SHARDS [--minutes 10] [--lr 1e-4] [--small] [--bn]
+    python benchmarks/learnability.py SHARDS [--minutes 10] [--lr 1e-4] [--small] [--bn] [--run runs/learnability]
 
 SHARDS needs `train` and `test` splits (appdgen build --split-by parent). Images are decoded once with the
 trainer's own shard reader; each step is the trainer's (bf16 autocast where the CPU has it, channels_last).
@@ -10,9 +10,10 @@ trainer's own shard reader; each step is the trainer's (bf16 autocast where the 
 from __future__ import annotations
 
 import argparse
+import csv
+import shutil
 import sys
 from pathlib import Path
-import time
 
 import numpy as np
 import torch
@@ -20,10 +21,12 @@ from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
 import train.model as model  # noqa: E402
-from train import runtime  # noqa: E402
+from train import checkpoint  # noqa: E402
 from train.data import Selection, ShardStream, StreamSpec, open_shards  # noqa: E402
-from train.loop import adam, to_input, train_step  # noqa: E402
-from train.model import AppdNet, ModelConfig  # noqa: E402
+from train.fit import FitOptions  # noqa: E402
+from train.loop import Trainer  # noqa: E402
+from train.model import ModelConfig  # noqa: E402
+from train.online.trainer import OnlinePlan  # noqa: E402
 
 #: The smaller network of the paper's released code (4 blocks of 8 filters, dense 256 → 64): ~14× fewer FLOPs.
 SMALL = dict(filters=(8, 8, 8, 8), dense=(256, 64))
@@ -45,58 +48,70 @@ def bn_block(c_in: int, c_out: int) -> nn.Sequential:
     )
 
 
-@torch.no_grad()
-def test_mae(net: AppdNet, test: dict, dtype: torch.dtype | None) -> tuple[float, float]:
-    """(MAE, prediction std) in APPD % over the first TEST_MAX test samples."""
-    net.eval()
-    preds = []
-    for i in range(0, min(len(test["label"]), TEST_MAX), 128):
-        with runtime.autocast(torch.device("cpu"), dtype):
-            preds.append(net(to_input({"image": test["image"][i:i + 128]}, torch.device("cpu"))).float())
-    net.train()
-    pred = torch.cat(preds)
-    return float((pred - test["label"][:len(pred)]).abs().mean()), float(pred.std())
+class MemoryTrainer(Trainer):
+    """The trainer's loop over a split held in memory (shuffled epochs), validating on the first TEST_MAX test
+    images."""
+
+    def __init__(self, opts: FitOptions, train: dict, test: dict, state: dict, run: Path) -> None:
+        n_test = min(len(test["label"]), TEST_MAX)
+        plan = OnlinePlan(f"{len(train['label'])} images in memory", f"{n_test} test images", len(train["label"]),
+                          n_test)
+        super().__init__(opts, plan, state, torch.device("cpu"), 0, 1, run)
+        self.data, self.test = train, test
+
+    def loader(self, step: int):
+        """Shuffled batches of the training split, epoch after epoch (seeded; a whole number of batches each)."""
+        rng, n, b = np.random.default_rng(step), len(self.data["label"]), self.opts.batch
+        while True:
+            for i in rng.permutation(n)[: n // b * b].reshape(-1, b):
+                idx = torch.from_numpy(i)
+                yield {"image": self.data["image"][idx], "label": self.data["label"][idx]}
+
+    def val_loader(self):
+        """The first TEST_MAX test images in batches of 128."""
+        return [{k: v[i:min(i + 128, TEST_MAX)] for k, v in self.test.items()}
+                for i in range(0, min(len(self.test["label"]), TEST_MAX), 128)]
+
+    def describe(self) -> str:
+        """'learnability: train …, val …'."""
+        return f"learnability: train {self.plan.train}, val {self.plan.val}"
 
 
 def main() -> None:
-    """Fit for --minutes, printing a line per minute."""
+    """Fit for --minutes, then print the log's validated rows (test MAE vs the mean predictor)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("shards")
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--lr", type=float, default=1e-4)
     ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--val-every", type=int, default=100, help="steps between test MAE rows")
+    ap.add_argument("--run", default="runs/learnability", help="run folder (replaced)")
     ap.add_argument("--small", action="store_true", help="the released code's 4×8-filter network")
     ap.add_argument("--bn", action="store_true", help="BatchNorm after every conv")
     args = ap.parse_args()
-    torch.manual_seed(0)
-    device = torch.device("cpu")
-    runtime.setup_threads(device)
-    dtype = runtime.autocast_dtype(device, "auto")
     train, test = load(args.shards, "train"), load(args.shards, "test")
     h, w = train["image"].shape[2:]
     if args.bn:
         model.conv_block = bn_block
-    net = AppdNet(ModelConfig(width=w, height=h, **(SMALL if args.small else {}))).to(memory_format=torch.channels_last)
-    opt = adam(net.parameters(), args.lr)
+    run = Path(args.run)
+    shutil.rmtree(run, ignore_errors=True)
+    run.mkdir(parents=True)
+    opts = FitOptions(shards=None, run=str(run), steps=10**9, batch=args.batch, lr=args.lr, ckpt_every=10**9,
+                      val_every=args.val_every, val_max=TEST_MAX, log_every=args.val_every, max_minutes=args.minutes,
+                      device="cpu")
+    state = checkpoint.initial(ModelConfig(width=w, height=h, **(SMALL if args.small else {})), 0,
+                               {"study": "learnability", "shards": args.shards})
     base = float((train["label"].mean() - test["label"][:TEST_MAX]).abs().mean())
     print(f"{len(train['label'])} train / {len(test['label'])} test images of {w}x{h}; train label variance "
           f"{float(train['label'].var()):.4f}; mean-predictor test MAE {base:.3f} %", flush=True)
-    rng, start, steps, losses, next_report = np.random.default_rng(0), time.time(), 0, [], 60.0
-    while time.time() - start < args.minutes * 60:
-        for i in rng.permutation(len(train["label"]))[: len(train["label"]) // args.batch * args.batch].reshape(-1, args.batch):
-            idx = torch.from_numpy(i)
-            losses.append(float(train_step(net, opt, {"image": train["image"][idx], "label": train["label"][idx]},
-                                           device, dtype)))
-            steps += 1
-            elapsed = time.time() - start
-            if elapsed >= next_report or elapsed >= args.minutes * 60:
-                mae, spread = test_mae(net, test, dtype)
-                print(f"{elapsed / 60:5.1f} min  step {steps}  epoch {steps * args.batch / len(train['label']):4.1f}  "
-                      f"train MSE {np.mean(losses[-50:]):.4f}  test MAE {mae:.3f} %  ratio {mae / base:.2f}  "
-                      f"pred std {spread:.3f}  {steps * args.batch / elapsed:.0f} img/s", flush=True)
-                next_report += 60.0
-                if elapsed >= args.minutes * 60:
-                    return
+    MemoryTrainer(opts, train, test, state, run).train(opts.steps)
+    with open(run / "log.csv", newline="") as fh:
+        for row in csv.DictReader(fh):
+            if row["val_mae"]:
+                mae = float(row["val_mae"])
+                print(f"step {row['step']}  epoch {int(row['step']) * args.batch / len(train['label']):4.1f}  "
+                      f"train MSE {float(row['train_loss']):.4f}  test MAE {mae:.3f} %  ratio {mae / base:.2f}  "
+                      f"{float(row['images_per_s'] or 0):.0f} img/s", flush=True)
 
 
 if __name__ == "__main__":

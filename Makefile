@@ -51,7 +51,7 @@ test-heavy: $(TRAIN_STAMP)
 # curvature (fit --model plumbline) fitted on fresh pairs of full-size synthetic streets (at 348x128 it sits at the
 # mean predictor: the bend it reads is below a pixel there), once on appd and once on bend; each scored on unseen
 # streets per frame and per sequence (10 frames under one miscalibration). The frames are made once (their
-# calibration file is written last); the streets and draws are the detector benchmark's unseen axis. The fit's
+# calibration file is written last); the streets and draws are the unseen axis of studies.detector. The fit's
 # 300 pairs are also its --stats-samples: the mean predictor it is scored against is their label mean. 32 unseen
 # sequences: the first 16 miscalibrations alone flatter the floor (docs/training.md). ~5 min on 2 cores; 1,200
 # pairs gained 0.01-0.03 of the ratios, inside their standard error, for 4x the fitting time.

@@ -437,7 +437,8 @@ def table(found: list[dict]) -> str:
              "seq median / mean |",
              "|---|---|---|---|---:|---:|---:|---:|---:|"]
     for r in found:
-        lines.append(f"| {r['arm']} | {r['target']} | {r['size']} | {r['axis']} | {r['ratio']:.2f} ± {r['ratio_se']:.2f} | "
+        lines.append(f"| {r['arm']} | {r['target']} | {r['size']} | {r['axis']} | "
+                     f"{r['ratio']:.2f} ± {r['ratio_se']:.2f} | "
                      f"{r['rho']:.2f} | {r['auc']:.2f} | {r['seq_mean']:.2f} | {r['seq_median']:.2f} |")
     return "\n".join(lines)
 

@@ -263,7 +263,8 @@ def experiment(tiny: bool, offline: bool, detector: bool, **kw) -> None:
     given = {k: v for k, v in kw.items() if v is not None}
     if "steps" in given:
         given["minutes"] = None
-    opts = ExperimentOptions(online=not offline, **{"image_format" if k == "format" else k: v for k, v in given.items()})
+    opts = ExperimentOptions(online=not offline,
+                             **{"image_format" if k == "format" else k: v for k, v in given.items()})
     if detector:
         from studies.detector import table
 

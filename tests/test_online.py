@@ -90,6 +90,7 @@ def test_the_same_seed_gives_the_same_losses_and_resume_continues_exactly(frames
     assert losses(other)[0] != losses(online_run)[0]
 
 
+@pytest.mark.slow
 def test_device_renderer_runs_on_cpu_torch(frames, tmp_path, capsys):
     summary = run_fit(fit_args(frames, tmp_path / "dev", "--steps", 2, "--render", "device", "--interp", "cubic"),
                       capsys)
@@ -174,6 +175,7 @@ def test_online_options_errors_are_one_line(frames, tmp_path, capsys):
         assert exc.value.code == 2 and needle in err and err.count("\n") == 1, err
 
 
+@pytest.mark.slow
 def test_experiment_goes_online_without_a_training_build(tmp_path, capsys):
     from studies.experiment import main as experiment
 

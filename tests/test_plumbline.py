@@ -128,6 +128,7 @@ def test_straight_lines_through_the_kitti_lens_straighten_and_bend_more_with_k1(
     assert max(ratios) < 1.5 * min(ratios), ratios
 
 
+@pytest.mark.slow
 def test_a_ridge_fit_on_some_streets_ranks_the_bend_of_unseen_ones() -> None:
     """30 streets × 2 fresh calibrations at 696×256, each street's pairs predicted by a fit on the other streets
     (5 folds). Measured: Spearman ρ 0.39, MAE 0.95 × the mean predictor's (seeds 1, 2: 0.54 / 0.74, 0.41 / 0.91;

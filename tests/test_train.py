@@ -451,6 +451,7 @@ def test_pixel_normalisation_subtracts_the_mean_training_image(shards, tmp_path,
     assert json.loads(out)["n"] == ss.split_count("test")  # the checkpoint rebuilds its 1×3×H×W mean buffer
 
 
+@pytest.mark.slow
 def test_experiment_runs_every_stage_and_prints_one_line(tmp_path, capsys):
     # The tiny mode's code path at smaller sizes (make paper-scale-tiny runs the real tiny sizes).
     from studies.experiment import main as experiment

@@ -17,9 +17,10 @@ from appdgen.calib.calibration import Calibration
 from appdgen.detect.baseline import Baseline
 from appdgen.detect.edges import EdgeParams, EdgePoints, edge_points
 from appdgen.detect.errormodel import MIN_SEGMENTS, kappa
-from appdgen.detect.model import FieldModel, belief_crop, cached_model
+from appdgen.detect.model import LIBRARY_DRAWS, FieldModel, belief_crop, cached_model
 from appdgen.detect.posterior import posterior
 from appdgen.detect.solve import Design, Estimate, SolveParams, pool, solve
+from appdgen.detect.tracks import track_ids
 from appdgen.errors import AppdgenError
 from appdgen.geometry.maps import rectify
 from appdgen.geometry.remap import remap_image
@@ -83,12 +84,12 @@ class Detector:
     """Reads how far a believed calibration is from the camera that took the frames, from straight edges."""
 
     def __init__(self, belief: Calibration, max_fov: float | None = None, *, cache_dir: Path | None = None,
-                 progress: Callable[[str], None] | None = None) -> None:
+                 progress: Callable[[str], None] | None = None, library_draws: int = LIBRARY_DRAWS) -> None:
         start = time.perf_counter()
         self.belief = belief
         self.max_fov = max_fov
         self.model: FieldModel
-        self.model, self.cached = cached_model(belief, max_fov, cache_dir, progress)
+        self.model, self.cached = cached_model(belief, max_fov, cache_dir, progress, library_draws)
         self.rect = rectify(belief, crop=belief_crop(belief, max_fov))
         self.edge_params = EdgeParams()
         self.solve_params = SolveParams()
@@ -112,16 +113,18 @@ class Detector:
         n = points.normal[points.seg]
         mu, basis = self.model.field_at(points.u, points.v)
         y = points.e + np.einsum("ij,ij->i", n, mu)
-        if baseline is not None:
-            y = y - np.einsum("ij,ij->i", n, baseline.bias_at(self.belief, self.max_fov, points.u, points.v))
+        if baseline is not None:  # the scene's apparent field adds to the lens's: the edges read as f + bias
+            y = y + np.einsum("ij,ij->i", n, baseline.bias_at(self.belief, self.max_fov, points.u, points.v))
         return Design(y, -np.einsum("ikj,ij->ik", basis, n), points.s, points.seg, points.segments)
 
     def estimate(self, evidence: Sequence[Evidence], baseline: Baseline | None = None) -> Estimate:
         """The pooled robust solve of the frames' evidence."""
-        designs = [self.design(e.points, baseline) for e in evidence if e.segments]
-        return solve(pool(designs) if designs else Design(np.zeros(0), np.zeros((0, len(self.model.var))),
-                                                          np.zeros(0), np.zeros(0, int), 0),
-                     self.model.var, self.solve_params)
+        used = [e.points for e in evidence if e.segments]
+        if not used:
+            k = len(self.model.var)
+            return solve(Design(np.zeros(0), np.zeros((0, k)), np.zeros(0), np.zeros(0, int), 0), self.model.var)
+        designs = [self.design(p, baseline) for p in used]
+        return solve(pool(designs, track_ids(used)), self.model.var, self.solve_params)
 
     def read(self, evidence: Sequence[Evidence], baseline: Baseline | None = None,
              threshold_pct: float = DEFAULT_THRESHOLD_PCT) -> Reading:

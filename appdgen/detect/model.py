@@ -29,6 +29,7 @@ from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.bend import output_rest, warp_field
 from appdgen.geometry.crop import Crop, valid_region
+from appdgen.sampling.reach import UnreachableError
 from appdgen.sampling.sampler import Sampler
 from appdgen.util.atomic import write_file
 
@@ -110,7 +111,10 @@ def build_model(belief: Calibration, max_fov: float | None = None, draws: int = 
     base = np.array(list(belief.params().values()))
     fields, appd, bend, offsets = [], [], [], []
     for i in range(draws):
-        d = sampler.draw(LIBRARY_SEED, i)
+        try:
+            d = sampler.draw(LIBRARY_SEED, i)
+        except UnreachableError:  # a target at the very top of what the belief's ranges reach: not a hypothesis
+            continue
         if progress is not None and (i + 1) % 250 == 0:
             progress(f"field model: {i + 1}/{draws} draws")
         offset = base - np.array(list(d.calib.params().values()))  # the belief is the draw around the truth
@@ -148,10 +152,10 @@ def principal_axes(centred: np.ndarray, components: int) -> np.ndarray:
     return axes.T
 
 
-def model_key(belief: Calibration, max_fov: float | None) -> str:
-    """Cache key of a belief's model: its parameters, size, lens model, max_fov and the model version."""
+def model_key(belief: Calibration, max_fov: float | None, draws: int = LIBRARY_DRAWS) -> str:
+    """Cache key of a belief's model: its parameters, size, lens model, max_fov, library size and model version."""
     text = json.dumps({"calib": belief.to_dict(), "max_fov": max_fov, "version": MODEL_VERSION,
-                       "draws": LIBRARY_DRAWS, "components": COMPONENTS, "spacing": GRID_SPACING}, sort_keys=True)
+                       "draws": draws, "components": COMPONENTS, "spacing": GRID_SPACING}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
@@ -187,12 +191,14 @@ def save_model(model: FieldModel, path: Path) -> bool:
 
 
 def cached_model(belief: Calibration, max_fov: float | None, cache_dir: Path | None,
-                 progress: Callable[[str], None] | None = None) -> tuple[FieldModel, bool]:
+                 progress: Callable[[str], None] | None = None, draws: int = LIBRARY_DRAWS
+                 ) -> tuple[FieldModel, bool]:
     """The belief's model from the cache, else built (and cached when the folder is writable); (model, was_cached)."""
-    path = (cache_dir if cache_dir is not None else default_cache_dir()) / f"field-{model_key(belief, max_fov)}.npz"
+    key = model_key(belief, max_fov, draws)
+    path = (cache_dir if cache_dir is not None else default_cache_dir()) / f"field-{key}.npz"
     model = load_model(path)
     if model is not None:
         return model, True
-    model = build_model(belief, max_fov, progress=progress)
+    model = build_model(belief, max_fov, draws, progress=progress)
     save_model(model, path)
     return model, False

@@ -1,0 +1,180 @@
+"""appdgen.detect (issue 32): sub-pixel edges against a rendered bend, readings under the true calibration and under
+a known perturbation, abstention, the baseline round trip, the model cache, another lens model's model."""
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from appdgen.calib.calibration import Calibration
+from appdgen.calib.defaults import default_calibration
+from appdgen.detect import Baseline, Detector
+from appdgen.detect.edges import edge_points
+from appdgen.detect.model import build_model
+from appdgen.errors import AppdgenError
+from appdgen.geometry.appd import appd
+from appdgen.geometry.bend import output_rest, output_warp, warp_field
+from appdgen.geometry.crop import valid_region
+from appdgen.synth import frame_rng, render_frame, scale_calibration
+
+DRAWS = 200  # a small library: the tests' models build in a few seconds
+
+
+@pytest.fixture(scope="module")
+def camera() -> Calibration:
+    """KITTI camera 02 at half size (696×256)."""
+    return scale_calibration(default_calibration("02"), 0.5)
+
+
+@pytest.fixture(scope="module")
+def frames(camera: Calibration) -> list[np.ndarray]:
+    """Five synthetic street frames taken by the camera."""
+    return [render_frame(camera, frame_rng(11, i)) for i in range(5)]
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory: pytest.TempPathFactory):
+    return tmp_path_factory.mktemp("detect-cache")
+
+
+@pytest.fixture(scope="module")
+def truth(camera: Calibration, cache) -> Detector:
+    """The detector whose belief is the true calibration."""
+    return Detector(camera, cache_dir=cache, library_draws=DRAWS)
+
+
+def rendered_bend(a: float = 1e-4, tilt: float = 0.05, size: tuple[int, int] = (400, 200), supersample: int = 8):
+    """An anti-aliased step edge along v = 90 + tilt·(u − 200) + a·(u − 200)² (area-sampled), and the curve."""
+    w, h = size
+    j = (np.arange(w * supersample) + 0.5) / supersample - 0.5
+    i = (np.arange(h * supersample) + 0.5) / supersample - 0.5
+    jj, ii = np.meshgrid(j, i)
+
+    def curve(u):
+        return 90 + tilt * (u - 200) + a * (u - 200) ** 2
+
+    fine = np.where(ii > curve(jj), 200.0, 50.0)
+    img = cv2.resize(fine, (w, h), interpolation=cv2.INTER_AREA)
+    return np.round(img).astype(np.uint8), curve
+
+
+def test_subpixel_edges_follow_a_rendered_bend():
+    img, curve = rendered_bend()
+    pts = edge_points(img)
+    assert pts.segments >= 1 and pts.u.size > 80
+    slope = 0.05 + 2e-4 * (pts.u - 200)
+    distance = (pts.v - curve(pts.u)) / np.sqrt(1 + slope ** 2)  # along the curve's normal
+    assert np.percentile(np.abs(distance), 95) <= 0.1
+    # The bend itself is seen: 4 px of sag over the image is far more than the error.
+    assert np.ptp(pts.v - 0.05 * (pts.u - 200)) > 2.0
+
+
+def test_output_rest_is_the_non_affine_part_in_sample_pixels(camera: Calibration):
+    sample = camera.perturb(fx=0.05, k1=0.1)
+    crop_r, crop_s = valid_region(camera), valid_region(sample)
+    uu, vv = np.meshgrid(np.linspace(0, 695, 30), np.linspace(0, 255, 12))
+    rest = output_rest(camera, crop_r, sample, crop_s, uu, vv)
+    wu, wv = output_warp(camera, crop_r, sample, crop_s, uu.ravel(), vv.ravel())
+    # p + rest(p) is an affine image of W(p): W − A·(p + rest) is constant.
+    design = np.column_stack([np.ones(uu.size), uu.ravel(), vv.ravel()])
+    a = np.linalg.lstsq(design, np.column_stack([wu, wv]), rcond=None)[0]
+    moved = np.column_stack([uu.ravel(), vv.ravel()]) + rest
+    left = np.column_stack([wu, wv]) - moved @ a[1:]
+    assert np.ptp(left, axis=0).max() < 1e-6
+    assert np.hypot(*rest.T).mean() > 0.1  # a real bend, not zeros
+    # In raw pixels through J* (warp_field's rest) the same bend has about the same size.
+    ratio = warp_field(camera, crop_r, sample, crop_s).bend_px / np.hypot(*rest.T).mean()
+    assert 0.5 < ratio < 2.0
+
+
+def test_true_calibration_reads_near_zero(truth: Detector, frames):
+    ev = [truth.evidence(f, str(i)) for i, f in enumerate(frames)]
+    assert all(e.segments > 5 for e in ev)
+    pooled = truth.read(ev)
+    assert pooled.appd_pct is not None and pooled.verdict in ("ok", "uncertain") and pooled.p_above < 0.5
+    # Well below the prior's mean (the library's mean label, ~0.5 %): the evidence speaks.
+    assert pooled.appd_pct < 0.7 * truth.model.appd.mean()
+
+
+def test_a_known_perturbation_is_recovered_in_sign_and_size(camera: Calibration, frames, cache):
+    belief = camera.replace(k1=camera.k1 * 0.85)  # the belief's k1 is off by 15 %: true − belief = −0.15·k1 > 0
+    label = appd(camera, belief)[1]
+    det = Detector(belief, cache_dir=cache, library_draws=DRAWS)
+    r = det.read([det.evidence(f) for f in frames])
+    assert r.appd_pct is not None
+    assert 0.5 * label < r.appd_pct < 1.6 * label, (r.appd_pct, label)
+    mean, sd = r.offsets["k1"]
+    assert mean < -0.2 * sd  # the true k1 is more negative than the belief's (k1 alone is confounded: weakly)
+    assert r.appd_sd_pct > 0 and r.p_above is not None
+
+
+def test_a_blank_image_abstains(truth: Detector, camera: Calibration):
+    blank = np.full((camera.height, camera.width), 128, np.uint8)
+    r = truth.read([truth.evidence(blank, "wall")])
+    assert r.appd_pct is None and r.p_above is None and r.offsets == {}
+    assert r.verdict == "abstain" and "no straight edges" in r.reason
+    noise = np.random.default_rng(0).integers(0, 255, blank.shape).astype(np.uint8)
+    r = truth.read([truth.evidence(cv2.GaussianBlur(noise, (0, 0), 3), "sky")])
+    assert r.appd_pct is None and r.reason
+    assert json.dumps(r.to_dict())  # JSON-ready
+
+
+def test_wrong_size_frame_is_one_line_error(truth: Detector):
+    with pytest.raises(AppdgenError, match="but the calibration is 696x256"):
+        truth.rectify(np.zeros((100, 100), np.uint8))
+
+
+def test_baseline_round_trip(truth: Detector, frames, tmp_path, camera: Calibration):
+    ev = [truth.evidence(f) for f in frames[:4]]
+    base = truth.save_baseline(ev, "frames 0-3")
+    assert np.abs(base.field).max() > 0.01  # the scene reads as some field: there is a bias to remove
+    path = tmp_path / "b.json"
+    base.to_json(path)
+    back = Baseline.from_json(path)
+    assert back.reference == camera and back.frames == 4 and back.source == "frames 0-3"
+    np.testing.assert_allclose(back.field, base.field, atol=1e-5)
+    # The same frames against their own baseline: the scene's bias is gone, the field reads as zero.
+    plain, based = truth.read(ev), truth.read(ev, baseline=back)
+    c_plain = truth.estimate(ev).c
+    c_based = truth.estimate(ev, back).c
+    zero = -truth.model.mean.ravel() @ truth.model.basis.reshape(len(c_plain), -1).T  # coefficients of f = 0
+    assert np.linalg.norm(c_based - zero) < 0.35 * np.linalg.norm(c_plain - zero)
+    assert based.appd_pct <= plain.appd_pct + 0.02
+    # Another camera's belief is refused, in one line.
+    with pytest.raises(AppdgenError, match="baseline from frames 0-3: recorded for a 700x256 radtan camera, but the calibration is a 696x256"):
+        truth.read(ev, baseline=Baseline.record(camera.replace(width=700), None, back.grid_u, back.grid_v,
+                                                back.field, 4, 10, "frames 0-3"))
+
+
+@pytest.mark.parametrize("content, problem", [("{", "not a JSON file"), ('{"format": "x"}', "not an appdgen detect"),
+                                              ('{"format": "appdgen-detect-baseline", "version": 1}', "malformed")])
+def test_bad_baseline_files_are_one_line_errors(tmp_path, content, problem):
+    path = tmp_path / "b.json"
+    path.write_text(content)
+    with pytest.raises(AppdgenError, match=problem) as err:
+        Baseline.from_json(path)
+    assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
+
+
+def test_the_model_cache_is_hit(camera: Calibration, cache, truth: Detector):
+    again = Detector(camera, cache_dir=cache, library_draws=DRAWS)
+    assert again.cached
+    np.testing.assert_array_equal(again.model.coefs, truth.model.coefs)
+    assert again.seconds_to_model < 2.0
+
+
+def test_an_unwritable_cache_is_not_an_error(camera: Calibration, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    det = Detector(camera, cache_dir=blocker / "sub", library_draws=40)
+    assert not det.cached and det.model.coefs.shape[0] > 30
+
+
+def test_a_fisheye_model_builds():
+    eucm = Calibration(376, 240, 230.0, 230.0, 188.0, 120.0, model="eucm", alpha=0.6, beta=1.1)
+    model = build_model(eucm, draws=60, components=6)
+    assert model.coefs.shape[0] >= 55 and np.isfinite(model.basis).all()
+    assert 0 < model.appd.mean() < 1.2 and model.bend.mean() < model.appd.mean()
+    assert model.names == eucm.param_names

@@ -1,4 +1,4 @@
-"""The classical floor (train.plumbline): plumb-line features of rectified images and their ridge fit."""
+"""The classical floor (appdgen.detect.plumbline): plumb-line features of rectified images and their ridge fit."""
 from __future__ import annotations
 
 import json
@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from appdgen.calib.defaults import default_calibration
+from appdgen.detect.plumbline import ALPHAS, FEATURE_NAMES, FEATURES, PlumbLine, feature_matrix, line_features
+from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.bend import split_warp
 from appdgen.geometry.crop import valid_region
@@ -19,8 +21,6 @@ from appdgen.geometry.maps import rectify
 from appdgen.geometry.remap import remap_image
 from appdgen.synth import scale_calibration
 from helpers import load_script
-from train.errors import TrainError
-from train.plumbline import ALPHAS, FEATURE_NAMES, FEATURES, PlumbLine, feature_matrix, line_features
 
 floor_benchmark = load_script("plumbline")
 HALF = scale_calibration(default_calibration(), 0.5)  # KITTI at 696×256: lines bend by a pixel, render is quick
@@ -91,7 +91,7 @@ def test_an_image_without_lines_has_zero_features() -> None:
 @pytest.mark.parametrize("image", [np.zeros((32, 32), np.float32), np.zeros((32, 32, 4), np.uint8),
                                    np.zeros((2, 32, 32), np.uint8)[..., None]])
 def test_bad_images_are_refused_with_one_clear_error(image: np.ndarray) -> None:
-    with pytest.raises(TrainError, match="plumb-line features need"):
+    with pytest.raises(AppdgenError, match="plumb-line features need"):
         line_features(image)
 
 
@@ -166,24 +166,24 @@ def test_predictions_are_clipped_at_zero_and_alpha_none_cross_validates() -> Non
 
 
 def test_misuse_is_a_clear_error(tmp_path) -> None:
-    with pytest.raises(TrainError, match="before fit"):
+    with pytest.raises(AppdgenError, match="before fit"):
         PlumbLine().predict_features(np.zeros((1, FEATURES)))
-    with pytest.raises(TrainError, match="features for"):
+    with pytest.raises(AppdgenError, match="features for"):
         PlumbLine().fit_features(np.zeros((5, FEATURES + 1)), np.zeros(5))
-    with pytest.raises(TrainError, match="not a plumb-line detector"):
+    with pytest.raises(AppdgenError, match="not a plumb-line detector"):
         PlumbLine.from_dict({"format": "something else"})
     saved = PlumbLine().fit_features(np.random.default_rng(2).normal(size=(10, FEATURES)), np.arange(10.0)).to_dict()
-    with pytest.raises(TrainError, match=f"{FEATURES} numbers each"):
+    with pytest.raises(AppdgenError, match=f"{FEATURES} numbers each"):
         PlumbLine.from_dict({**saved, "weights": saved["weights"][:-1]})
-    with pytest.raises(TrainError, match="bad field"):
+    with pytest.raises(AppdgenError, match="bad field"):
         PlumbLine.from_dict({k: v for k, v in saved.items() if k != "alpha"})
     (tmp_path / "bad.json").write_text("{")
-    with pytest.raises(TrainError, match="bad.json"):
+    with pytest.raises(AppdgenError, match="bad.json"):
         PlumbLine.load(tmp_path / "bad.json")
 
 
 def test_the_module_imports_without_torch() -> None:
-    code = "import sys; sys.modules['torch'] = None; import train.plumbline; print(train.plumbline.FEATURES)"
+    code = "import sys; sys.modules['torch'] = None; import appdgen.detect.plumbline as p; print(p.FEATURES)"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr
     assert int(done.stdout) == FEATURES

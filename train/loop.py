@@ -22,7 +22,7 @@ from train import checkpoint, runtime
 from train.errors import TrainError
 from train.model import AppdNet
 from train.nets import image_features
-from train.plumbline import PlumbLine
+from appdgen.detect.plumbline import PlumbLine
 
 LOG_COLUMNS = ("step", "train_loss", "val_loss", "val_mae", "lr", "images_per_s")
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from train.errors import TrainError
+from appdgen.errors import AppdgenError
 
 #: LSD runs on a copy at most this wide (INTER_AREA): long edges survive, texture fragments less (73 of 899 segments
 #: were long at full 1392×512), and it is faster; the offsets are still measured on the full-resolution gradient.
@@ -75,9 +75,9 @@ def _grey(image: np.ndarray) -> np.ndarray:
     elif image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
     if image.ndim != 2:
-        raise TrainError(f"plumb-line features need an H×W grey or H×W×3 BGR image, got shape {image.shape}")
+        raise AppdgenError(f"plumb-line features need an H×W grey or H×W×3 BGR image, got shape {image.shape}")
     if image.dtype != np.uint8:
-        raise TrainError(f"plumb-line features need a uint8 image, got {image.dtype}")
+        raise AppdgenError(f"plumb-line features need a uint8 image, got {image.dtype}")
     return np.ascontiguousarray(image)
 
 
@@ -255,9 +255,9 @@ class PlumbLine:
         """fit on a precomputed feature matrix (N×FEATURES)."""
         x, y = np.asarray(x, np.float64), np.asarray(targets, np.float64).ravel()
         if x.ndim != 2 or x.shape[1] != FEATURES or len(x) != len(y):
-            raise TrainError(f"plumb-line fit: {x.shape} features for {y.shape} targets (need N×{FEATURES} and N)")
+            raise AppdgenError(f"plumb-line fit: {x.shape} features for {y.shape} targets (need N×{FEATURES} and N)")
         if len(y) < 2:
-            raise TrainError(f"plumb-line fit needs at least 2 images, got {len(y)}")
+            raise AppdgenError(f"plumb-line fit needs at least 2 images, got {len(y)}")
         self.alpha = float(alpha) if alpha is not None else _cross_validated_alpha(x, y)
         self.mean, self.scale = _centre_and_spread(x)
         self.weights, self.intercept = _ridge(_standardise(x, self.mean, self.scale), y, self.alpha)
@@ -270,14 +270,14 @@ class PlumbLine:
     def predict_features(self, x: np.ndarray) -> np.ndarray:
         """predict on a precomputed feature matrix (N×FEATURES)."""
         if self.weights is None:
-            raise TrainError("plumb-line detector: predict before fit (or load)")
+            raise AppdgenError("plumb-line detector: predict before fit (or load)")
         x = np.asarray(x, np.float64).reshape(-1, FEATURES)
         return np.maximum(_standardise(x, self.mean, self.scale) @ self.weights + self.intercept, 0.0)
 
     def to_dict(self) -> dict:
         """JSON-safe form (from_dict reads it back)."""
         if self.weights is None:
-            raise TrainError("plumb-line detector: nothing fitted to save")
+            raise AppdgenError("plumb-line detector: nothing fitted to save")
         return {"format": FORMAT, "features": list(FEATURE_NAMES), "mean": self.mean.tolist(),
                 "scale": self.scale.tolist(), "weights": self.weights.tolist(), "intercept": self.intercept,
                 "alpha": self.alpha}
@@ -286,16 +286,16 @@ class PlumbLine:
     def from_dict(cls, data: dict) -> "PlumbLine":
         """The detector to_dict wrote; refuses another format or feature list."""
         if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise TrainError(f"not a plumb-line detector (format {data.get('format') if isinstance(data, dict) else None!r}, expected {FORMAT})")
+            raise AppdgenError(f"not a plumb-line detector (format {data.get('format') if isinstance(data, dict) else None!r}, expected {FORMAT})")
         if list(data.get("features", [])) != list(FEATURE_NAMES):
-            raise TrainError("plumb-line detector: its feature list differs from this version's")
+            raise AppdgenError("plumb-line detector: its feature list differs from this version's")
         try:
             arrays = [np.array(data[key], np.float64) for key in ("mean", "scale", "weights")]
             intercept, alpha = float(data["intercept"]), float(data["alpha"])
         except (KeyError, TypeError, ValueError) as exc:
-            raise TrainError(f"plumb-line detector: bad field ({exc})") from None
+            raise AppdgenError(f"plumb-line detector: bad field ({exc})") from None
         if any(a.shape != (FEATURES,) for a in arrays):
-            raise TrainError(f"plumb-line detector: mean, scale and weights must hold {FEATURES} numbers each")
+            raise AppdgenError(f"plumb-line detector: mean, scale and weights must hold {FEATURES} numbers each")
         return cls(*arrays, intercept, alpha)
 
     def save(self, path: str | Path) -> None:
@@ -308,7 +308,7 @@ class PlumbLine:
         try:
             data = json.loads(Path(path).read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
-            raise TrainError(f"{path}: cannot read a plumb-line detector ({exc})") from None
+            raise AppdgenError(f"{path}: cannot read a plumb-line detector ({exc})") from None
         return cls.from_dict(data)
 
 

@@ -9,7 +9,7 @@ DEMO := demo
 # The CPU build of torch (an unpinned torch pulls a multi-GB CUDA build).
 TORCH := torch==2.13.0
 
-.PHONY: demo test test-core test-slow test-heavy train train-cnn train-one-scene paper-scale paper-scale-tiny paper-scale-detector detector detector-tiny device-wheels bench bench-synth bench-render bench-rss clean
+.PHONY: demo test test-core test-slow test-heavy train train-cnn train-one-scene paper-scale paper-scale-tiny paper-scale-detector detector detector-tiny detect-study detect-study-tiny device-wheels bench bench-synth bench-render bench-rss clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -129,6 +129,15 @@ detector: $(TRAIN_STAMP)
 
 detector-tiny: $(TRAIN_STAMP)
 	$(PY) -m studies.detector --tiny --out runs/detector-tiny $(ARGS)
+
+# The bend-field estimator (appdgen.detect, issue 32) as an arm of the same comparison: every axis, the sequential
+# test and two other lenses (docs/studies/bend-field-detector.md; ~1 h on 2 shared cores, its models cached in
+# runs/bendfield/cache); detect-study-tiny in about a minute.
+detect-study: $(TRAIN_STAMP)
+	nice -n 10 $(PY) -m studies.bendfield --out runs/bendfield $(ARGS)
+
+detect-study-tiny: $(TRAIN_STAMP)
+	$(PY) -m studies.bendfield --tiny --out runs/bendfield-tiny $(ARGS)
 
 # Wheels the accelerator machine lacks (its python3 has CUDA torch, OpenCV, pyarrow, click, joblib, pyyaml but not
 # webdataset): pure-Python, carried in .whl/ (git-ignored). See docs/training.md, "Running it on the accelerator".

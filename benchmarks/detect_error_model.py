@@ -22,11 +22,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from detect_score import Frames  # noqa: E402
 
 from appdgen.detect import Detector  # noqa: E402
+from appdgen.detect.posterior import posterior  # noqa: E402
+from appdgen.geometry.appd import appd  # noqa: E402
 from appdgen.detect.model import belief_crop  # noqa: E402
 from appdgen.geometry.bend import output_rest  # noqa: E402
 from appdgen.sampling.sampler import Sampler  # noqa: E402
 
 FIT_SEED = 7001  # beliefs of the fit: apart from the scorer's seeds
+KAPPAS = (3.0, 10.0, 30.0, 100.0)  # also printed: MAE / the mean predictor's of the posterior mean APPD at each
 
 
 def true_coefficients(det: Detector, true) -> np.ndarray:
@@ -76,10 +79,11 @@ def main() -> None:
     true, nf = frames.true, len(frames.raw)
     sampler = Sampler(true)
     stats: dict[str, list] = {"frame": [], "sequence": []}
+    reads: dict[str, list] = {"frame": [], "sequence": []}  # (label, {κ: posterior mean APPD}, library mean)
     for j in range(args.beliefs + args.sequences):
         kind = "frame" if j < args.beliefs else "sequence"
         belief = sampler.draw(FIT_SEED, j).calib
-        det = Detector(belief, cache_dir=args.cache)
+        det = Detector(belief, cache_dir=args.cache, library_seconds=None)  # the full library, whatever the load
         c_true = true_coefficients(det, true)
         prior = np.diag(1.0 / det.model.var)
         groups = ([[(j * args.per_belief + m) * 7 % nf] for m in range(args.per_belief)] if kind == "frame"
@@ -87,6 +91,8 @@ def main() -> None:
         for idx in groups:
             est = det.estimate([frames.evidence(det, i) for i in idx])
             stats[kind].append((est.h, est.g, prior, c_true))
+            reads[kind].append((appd(true, belief)[1], {k: posterior(det.model, est.h, est.g, k, 0.5).appd
+                                                        for k in KAPPAS}, float(det.model.appd.mean())))
         print(f"  belief {j + 1}/{args.beliefs + args.sequences} ({kind})", flush=True)
     fitted = {kind: calibrated_kappa(s) for kind, s in stats.items()}
     frames_of = {"frame": 1, "sequence": args.sequence}
@@ -96,6 +102,10 @@ def main() -> None:
         for k in (1.0, fitted[kind], 30.0):
             d = [mahalanobis(h, g, p, c, k) for h, g, p, c in s]
             print(f"  {kind}: kappa {k:.3g}: mean d2/K {np.mean(d):.2f}, median {np.median(d):.2f}")
+        y = np.array([r[0] for r in reads[kind]])
+        base = np.abs(np.array([r[2] for r in reads[kind]]) - y).mean()
+        print(f"  {kind}: MAE / mean predictor's by kappa: " + ", ".join(
+            f"{k:g}: {np.abs(np.array([r[1][k] for r in reads[kind]]) - y).mean() / base:.3f}" for k in KAPPAS))
 
 
 if __name__ == "__main__":

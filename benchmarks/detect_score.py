@@ -86,7 +86,7 @@ class Frames:
     def evidence(self, det: Detector, i: int) -> Evidence:
         """Frame i's evidence under a detector's belief (cached)."""
         tag = hashlib.sha1(f"{self.names[i]} {det.edge_params}".encode()).hexdigest()[:16]
-        path = self.cache / "evidence" / f"{model_key(det.belief, det.max_fov)}-{tag}.npz"
+        path = self.cache / "evidence" / f"{model_key(det.belief, det.max_fov, budget=None)}-{tag}.npz"
         if path.exists():
             with np.load(path) as z:
                 pts = EdgePoints(**{k: z[k] for k in EdgePoints.__dataclass_fields__})
@@ -135,14 +135,12 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=Path("/tmp/det/cache"))
     ap.add_argument("--out", type=Path, default=Path("."))
     ap.add_argument("--kappas", default="", help="also score the posterior at these tempering values (1,3,10)")
-    ap.add_argument("--esses", default="1", help="... and these least effective draws (with --kappas)")
     args = ap.parse_args()
     kappas = [float(k) for k in args.kappas.split(",") if k]
-    esses = [float(k) for k in args.esses.split(",") if k]
     calib = args.calib or str(Path(args.frames) / "calibration.yaml")
     frames = Frames(args.frames, calib, args.cache)
     true, nf = frames.true, len(frames.raw)
-    ref = Detector(true, cache_dir=args.cache)
+    ref = Detector(true, cache_dir=args.cache, library_seconds=None)
     test = list(range(nf))
     baseline = None
     if args.baseline_frames:
@@ -156,8 +154,8 @@ def main() -> None:
     solve_seconds: list[float] = []
 
     def run(kind: str, belief: Calibration, appd_px: float, idx: list[int], det: Detector | None = None) -> None:
-        det = det or Detector(belief, cache_dir=args.cache)
-        key = model_key(belief, None)
+        det = det or Detector(belief, cache_dir=args.cache, library_seconds=None)
+        key = model_key(belief, None, budget=None)
         mean_label[key] = float(det.model.appd.mean())
         ev = [frames.evidence(det, i) for i in idx]
         t0 = time.perf_counter()
@@ -166,14 +164,13 @@ def main() -> None:
             solve_seconds.append(time.perf_counter() - t0)
         est = det.estimate(ev, baseline)
         y, yb = labels(true, belief, appd_px)
-        sweep = {f'{kp:g}/{ess:g}': posterior(det.model, est.h, est.g, kp, THRESHOLD, est.c if ess > 1 else None, ess).appd
-                 for kp in kappas for ess in esses}
+        sweep = {f"{kp:g}": posterior(det.model, est.h, est.g, kp, THRESHOLD).appd for kp in kappas}
         cases.append(Case(kind, idx, y, yb, r.appd_pct, r.appd_sd_pct, r.bend_pct, r.p_above, r.segments, key,
                           est.h.tolist(), est.g.tolist(), sweep))
 
     for j in range(args.beliefs):
         d = sampler.draw(FRAME_SEED, j)
-        det = Detector(d.calib, cache_dir=args.cache)
+        det = Detector(d.calib, cache_dir=args.cache, library_seconds=None)
         for m in range(args.per_belief):
             run("frame", d.calib, d.appd_px, [test[(j * args.per_belief + m) * 7 % len(test)]], det)
         print(f"  belief {j + 1}/{args.beliefs} {time.time() - start:.0f} s", flush=True)

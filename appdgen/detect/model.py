@@ -34,9 +34,14 @@ from appdgen.sampling.sampler import Sampler
 from appdgen.util.atomic import write_file
 
 #: Bump when the model's content or meaning changes: older cache files are then ignored.
-MODEL_VERSION = 2
+MODEL_VERSION = 2  # (the budget leaves KITTI's 1,000-draw models as they were)
 LIBRARY_SEED = 4242  # library draw i is Sampler(belief).draw(LIBRARY_SEED, i)
-LIBRARY_DRAWS = 1000  # draws: ~12 s for KITTI's radtan on one core (2-core machine, shared)
+LIBRARY_DRAWS = 1000  # draws at most: ~12 s for KITTI's radtan on one core
+#: Seconds of drawing after which the library stops short of LIBRARY_DRAWS (lenses whose crops and searches cost
+#: more: a 2880×1860 rational camera ~150 ms a draw, EUCM ~30 ms), so that a model is ready within ~20 s; it keeps
+#: at least LEAST_DRAWS. The library's size is then the machine's: a cached model is reused as it is.
+BUDGET_SECONDS = 14.0
+LEAST_DRAWS = 100
 COMPONENTS = 12  # PCA components of the field
 GRID_SPACING = 32.0  # output px between field grid nodes (corners included)
 #: Grid points across the output for the labels (geometry.bend's grid): APPD to ~1e-4 % of the full-grid label.
@@ -101,8 +106,10 @@ def belief_crop(belief: Calibration, max_fov: float | None) -> Crop:
 
 
 def build_model(belief: Calibration, max_fov: float | None = None, draws: int = LIBRARY_DRAWS,
-                components: int = COMPONENTS, progress: Callable[[str], None] | None = None) -> FieldModel:
-    """Draw the library around the belief, label it and fit the field basis (seconds: ~LIBRARY_DRAWS × 7 ms)."""
+                components: int = COMPONENTS, progress: Callable[[str], None] | None = None,
+                budget: float | None = BUDGET_SECONDS) -> FieldModel:
+    """Draw the library around the belief (at most `draws`, within `budget` seconds unless None), label it and
+    fit the field basis."""
     start = time.perf_counter()
     sampler = Sampler(belief, max_fov=max_fov)
     crop_b = belief_crop(belief, max_fov)
@@ -111,6 +118,8 @@ def build_model(belief: Calibration, max_fov: float | None = None, draws: int = 
     base = np.array(list(belief.params().values()))
     fields, appd, bend, offsets = [], [], [], []
     for i in range(draws):
+        if budget is not None and i >= LEAST_DRAWS and time.perf_counter() - start > budget:
+            break
         try:
             d = sampler.draw(LIBRARY_SEED, i)
         except UnreachableError:  # a target at the very top of what the belief's ranges reach: not a hypothesis
@@ -152,10 +161,15 @@ def principal_axes(centred: np.ndarray, components: int) -> np.ndarray:
     return axes.T
 
 
-def model_key(belief: Calibration, max_fov: float | None, draws: int = LIBRARY_DRAWS) -> str:
-    """Cache key of a belief's model: its parameters, size, lens model, max_fov, library size and model version."""
-    text = json.dumps({"calib": belief.to_dict(), "max_fov": max_fov, "version": MODEL_VERSION,
-                       "draws": draws, "components": COMPONENTS, "spacing": GRID_SPACING}, sort_keys=True)
+def model_key(belief: Calibration, max_fov: float | None, draws: int = LIBRARY_DRAWS,
+              budget: float | None = BUDGET_SECONDS) -> str:
+    """Cache key of a belief's model: its parameters, size, lens model, max_fov, library size and budget, and the
+    model version."""
+    fields = {"calib": belief.to_dict(), "max_fov": max_fov, "version": MODEL_VERSION, "draws": draws,
+              "components": COMPONENTS, "spacing": GRID_SPACING}
+    if budget is not None:  # a library cut short by time is not the full one
+        fields["budget"] = budget
+    text = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
@@ -191,14 +205,14 @@ def save_model(model: FieldModel, path: Path) -> bool:
 
 
 def cached_model(belief: Calibration, max_fov: float | None, cache_dir: Path | None,
-                 progress: Callable[[str], None] | None = None, draws: int = LIBRARY_DRAWS
-                 ) -> tuple[FieldModel, bool]:
+                 progress: Callable[[str], None] | None = None, draws: int = LIBRARY_DRAWS,
+                 budget: float | None = BUDGET_SECONDS) -> tuple[FieldModel, bool]:
     """The belief's model from the cache, else built (and cached when the folder is writable); (model, was_cached)."""
-    key = model_key(belief, max_fov, draws)
+    key = model_key(belief, max_fov, draws, budget)
     path = (cache_dir if cache_dir is not None else default_cache_dir()) / f"field-{key}.npz"
     model = load_model(path)
     if model is not None:
         return model, True
-    model = build_model(belief, max_fov, draws, progress=progress)
+    model = build_model(belief, max_fov, draws, progress=progress, budget=budget)
     save_model(model, path)
     return model, False

@@ -244,3 +244,18 @@ def test_real_euroc_frames_under_their_own_calibration_read_in_order(shared: Pat
         assert (entry["appd_pct"] is None) == (entry["reason"] is not None)
         assert entry["appd_pct"] is None or 0 <= entry["bend_pct"] <= entry["appd_pct"] + 3 * entry["appd_sd_pct"]
     assert [(s["first"], s["count"]) for s in document["sequences"]] == [(0, 4)]
+
+
+def test_the_parameter_that_moved_most_is_the_one_whose_offset_alone_moves_pixels_most(street: Street):
+    from appdgen.cli.detect import appd_per_unit, most_moved
+    from appdgen.geometry.appd import appd
+
+    belief = load(street.calib)
+    rates = appd_per_unit(belief, None)
+    assert set(rates) == set(belief.param_names) and min(rates.values()) > 0
+    for name, offset in (("cx", 2.0), ("k1", 0.004)):  # the rate against APPD at the raw size, a step 2-4x larger
+        alone = appd(belief, belief.replace(**{name: belief.params()[name] + offset}))[1]
+        assert rates[name] * offset == pytest.approx(alone, rel=0.05), name
+    offsets = {"fx": {"mean": 3.0, "sd": 0.1}, "cx": {"mean": -2.0, "sd": 1.0}, "k1": {"mean": 0.0, "sd": 1e-9}}
+    bigger = max(("fx", 3.0), ("cx", 2.0), key=lambda item: rates[item[0]] * item[1])[0]
+    assert most_moved(offsets, rates).split()[0] == bigger and most_moved({}, rates) == ""

@@ -165,6 +165,15 @@ def test_the_model_cache_is_hit(camera: Calibration, cache, truth: Detector):
     assert again.seconds_to_model < 2.0
 
 
+def test_a_damaged_cache_file_is_rebuilt(camera: Calibration, tmp_path):
+    det = Detector(camera, cache_dir=tmp_path, library_draws=40)
+    (cached,) = tmp_path.glob("field-*.npz")
+    cached.write_bytes(cached.read_bytes()[:100])  # truncated
+    again = Detector(camera, cache_dir=tmp_path, library_draws=40)
+    assert not again.cached
+    np.testing.assert_array_equal(again.model.coefs, det.model.coefs)
+
+
 def test_an_unwritable_cache_is_not_an_error(camera: Calibration, tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")

@@ -17,6 +17,7 @@ import io
 import json
 import os
 import time
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -188,7 +189,7 @@ def load_model(path: Path) -> FieldModel | None:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in _ARRAYS}
             names = tuple(str(n) for n in z["names"])
-    except (OSError, KeyError, ValueError):
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):  # absent, truncated or foreign
         return None
     return FieldModel(**arrays, names=names, seconds=0.0)
 

@@ -19,7 +19,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # its synthetic shards
 from synthetic_shards import write_shards  # noqa: E402
 from train import runtime  # noqa: E402
-from train.data import Selection, StreamSpec, make_loader, open_shards  # noqa: E402
+from appdgen.dataset.shardset import open_shards  # noqa: E402
+from train.data import Selection, StreamSpec, make_loader  # noqa: E402
 from train.loop import adam, train_step  # noqa: E402
 from train.model import AppdNet, ModelConfig  # noqa: E402
 

@@ -22,7 +22,8 @@ from torch import nn
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
 import train.model as model  # noqa: E402
 from train import checkpoint  # noqa: E402
-from train.data import Selection, ShardStream, StreamSpec, open_shards  # noqa: E402
+from appdgen.dataset.shardset import open_shards  # noqa: E402
+from train.data import Selection, ShardStream, StreamSpec  # noqa: E402
 from train.fit import FitOptions  # noqa: E402
 from train.loop import Trainer  # noqa: E402
 from train.model import ModelConfig  # noqa: E402

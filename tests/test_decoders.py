@@ -140,9 +140,8 @@ def test_only_sources_decodes_raw_frames() -> None:
 
 @pytest.mark.parametrize("channels", [1, 3])
 def test_the_offline_loaders_png_decoder_gives_opencvs_pixels(channels: int) -> None:
-    pytest.importorskip("torch")
+    from appdgen.dataset import shardset as data
     from appdgen.dataset.images import encode_image
-    from train import data
 
     image = raw_image((348, 128), 9)
     image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if channels == 1 else image

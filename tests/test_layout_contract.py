@@ -53,7 +53,8 @@ SCRIPT = textwrap.dedent("""
               "inspect": cli("inspect", out), "verify": cli("verify", out)}
 
     from train.cli import main as train
-    from train.data import Selection, ShardStream, StreamSpec, open_shards
+    from appdgen.dataset.shardset import open_shards
+    from train.data import Selection, ShardStream, StreamSpec
     sys.path.insert(0, str(Path(root) / "tests"))
     from synthetic_shards import write_shards
 

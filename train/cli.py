@@ -8,8 +8,9 @@ from dataclasses import asdict
 
 import click
 
-from appdgen.cli.base import recording_options, stack_options
+from appdgen.cli.base import recording_options, stack_options, start_plot
 from appdgen.dataset.layout import TARGETS
+from appdgen.errors import AppdgenError
 from train.errors import TrainError
 from train.nets import MODELS
 
@@ -132,7 +133,7 @@ def fit(**kw) -> None:
                                             "detector comparison's, train.scoring.SEQUENCE_SEED].")
 @click.option("--split", default="test", show_default=True)
 @click.option("--json", "json_path", help="Also write the metrics to this JSON file.")
-@click.option("--plot", "plot_path", help="Predicted-vs-true APPD plot (PNG; needs matplotlib).")
+@click.option("--plot", "plot_path", help="Predicted-vs-true APPD plot (PNG; needs the 'plot' extra: matplotlib).")
 @click.option("--threshold", default=1.0, show_default=True, help="APPD % above which a camera needs recalibration.")
 @click.option("--batch", default=64, show_default=True, type=click.IntRange(1))
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(0))
@@ -148,6 +149,7 @@ def evaluate(ckpt: str, shards: str | None, frames: str | None, length: int, seq
 
     if (shards is None) == (frames is None):
         raise TrainError("give --shards (a build and its --split) or --frames (raw frames of a fit --online run)")
+    start_plot(plot_path)
     if frames is not None:
         if plot_path:
             raise TrainError("--plot needs --shards")
@@ -236,11 +238,7 @@ def export(ckpt: str, onnx_path: str | None, pt2_path: str | None, json_path: st
 
 
 def user_errors() -> tuple[type[Exception], ...]:
-    """Exception types shown as one line: ours, and appdgen's (from --calib loading)."""
-    try:
-        from appdgen.errors import AppdgenError
-    except ImportError:
-        return (TrainError,)
+    """Exception types shown as one line: ours, and appdgen's (calibrations, frames, builds, the floor)."""
     return (TrainError, AppdgenError)
 
 

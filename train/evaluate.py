@@ -8,9 +8,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from train import checkpoint, runtime
+from appdgen.analysis.plots import plot_predictions
 from appdgen.dataset.layout import TARGETS
-from train.data import Selection, StreamSpec, make_loader, open_shards, read_labels, target_labels
+from appdgen.dataset.shardset import open_shards, read_labels, target_labels
+from train import checkpoint, runtime
+from train.data import Selection, StreamSpec, make_loader
 from train.errors import TrainError
 from train.loop import to_input
 from train.model import AppdNet
@@ -33,38 +35,6 @@ def predict_split(model: AppdNet, loader, device: torch.device, dtype) -> tuple[
     if not keys:
         raise TrainError("no samples to evaluate")
     return keys, np.concatenate(true).astype(float), np.concatenate(pred).astype(float)
-
-
-def plot(y_true: np.ndarray, y_pred: np.ndarray, appd_max: float, threshold: float, path: Path, title: str,
-         quantity: str = "APPD") -> bool:
-    """Box plots of predictions per bin of the true label (`quantity`: APPD, or the target fit learnt) vs the
-    identity line; False when matplotlib is absent."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        print("evaluate: matplotlib not installed (pip install -e .[plot]); skipping the plot", file=sys.stderr)
-        return False
-    edges = bin_edges(appd_max)
-    idx = bin_index(y_true, edges)
-    groups = [(0.5 * (edges[b] + edges[b + 1]), y_pred[idx == b]) for b in range(len(edges) - 1)]
-    groups = [(c, g) for c, g in groups if len(g)]
-    width = 0.7 * (edges[1] - edges[0])
-    fig, ax = plt.subplots(figsize=(7, 5), dpi=110)
-    ax.boxplot([g for _, g in groups], positions=[c for c, _ in groups], widths=width, manage_ticks=False,
-               showfliers=True, flierprops={"markersize": 2})
-    ax.plot([0, appd_max], [0, appd_max], "--", color="tab:green", label="ideal")
-    ax.axhline(threshold, color="tab:red", lw=0.8, label=f"threshold {threshold:g}%")
-    ax.set(xlabel=f"true {quantity} (% of diagonal), binned", ylabel=f"predicted {quantity} (% of diagonal)",
-           title=title, xlim=(0, appd_max))
-    ax.legend(loc="upper left")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return True
 
 
 def write_json(path: str, result: dict) -> None:
@@ -100,10 +70,11 @@ def evaluate(ckpt_path: str, shards: str, split: str, json_path: str | None = No
     if json_path:
         write_json(json_path, result)
     if plot_path:
-        title = f"{split}: MAE {result['mae']:.3f}% (mean predictor {result['mean_predictor_mae']:.3f}%)"
-        quantity = "APPD" if target == "appd" else target
-        drawn = plot(y_true, y_pred, appd_max, threshold, Path(plot_path), title, quantity)
-        result["plot"] = str(plot_path) if drawn else None
+        edges = bin_edges(appd_max)
+        plot_predictions(Path(plot_path), edges, bin_index(y_true, edges), y_pred, threshold,
+                         f"{split}: MAE {result['mae']:.3f}% (mean predictor {result['mean_predictor_mae']:.3f}%)",
+                         "APPD" if target == "appd" else target)
+        result["plot"] = str(plot_path)
     return result
 
 

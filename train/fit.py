@@ -11,11 +11,9 @@ from typing import TYPE_CHECKING
 import torch
 
 from appdgen.dataset.layout import BUILD_JSON, INDEX, TARGETS
+from appdgen.dataset.shardset import ShardSet, open_shards, read_labels, target_labels
 from train import checkpoint, runtime
-from train.data import (
-    Selection, ShardSet, ShardStream, StreamSpec, channel_stats, count_selected, make_loader, open_shards, read_labels,
-    target_labels,
-)
+from train.data import Selection, ShardStream, StreamSpec, channel_stats, count_selected, make_loader
 from train.errors import TrainError
 from train.holdout import holdout_unit, val_choice
 from train.loop import Trainer, resumed, total_steps
@@ -123,9 +121,9 @@ def sample_size(ss: ShardSet, sel: Selection) -> tuple[int, int]:
     return (w, h)
 
 
-def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOptions) -> dict:
-    """A fresh checkpoint dict: normalisation from a spread subset, label mean, untrained weights."""
-    size = sample_size(ss, plan.train)
+def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOptions, size: tuple[int, int]) -> dict:
+    """A fresh checkpoint dict for images of `size` (w, h): normalisation from a spread subset, label mean, untrained
+    weights."""
     check_size(*size)
     checkpoint.check_normalize(opts.normalize)
     spec = StreamSpec(ss.for_split(plan.train.split), plan.train, size, labels=plan.labels)
@@ -149,22 +147,16 @@ def _train_label_mean(labels: dict, sel: Selection, column: str) -> float:
 
 def load_or_init(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOptions, run: Path) -> dict:
     """The checkpoint to start from: run/last.pt with --resume, else a fresh one (never overwrites)."""
-    state = resumed(run, opts)
+    size = sample_size(ss, plan.train)
+    state = resumed(run, opts, size)
     if state is None:
-        return new_state(ss, labels, plan, opts)
+        return new_state(ss, labels, plan, opts, size)
     last = run / "last.pt"
-    if state["config"].get("data", {}).get("online"):
-        raise TrainError(f"{last}: an --online run; resume it with --online, or choose another --run")
     started = state["config"].get("fit", {})
     changed = [k for k in RESUME_SAME if k in started and started[k] != getattr(opts, k)]
     if changed:
         print(f"fit: resuming with another {', '.join('--' + k.replace('_', '-') for k in changed)} than the run "
               f"started with: the data continues from an approximate position", file=sys.stderr)
-    cfg = checkpoint.model_config(state)
-    size = sample_size(ss, plan.train)
-    if (cfg.width, cfg.height) != size:
-        raise TrainError(f"{last} was trained on {cfg.width}x{cfg.height} images, "
-                         f"but the shards are {size[0]}x{size[1]}")
     mismatch = checkpoint.rule_mismatch(state, ss.rectify_rule())
     if mismatch:
         raise TrainError(f"{last}: {mismatch}; resume on shards built with the same --max-fov, or start a new --run")
@@ -204,8 +196,6 @@ def shard_trainer(opts: FitOptions, device: torch.device, rank: int, world: int,
         run.mkdir(parents=True, exist_ok=True)
     state = load_or_init(ss, labels, plan, opts, run)
     return ShardTrainer(opts, ss, plan, state, device, rank, world, run), steps
-
-
 
 
 class ShardTrainer(Trainer):

@@ -17,12 +17,12 @@ import torch
 import torch.nn.functional as F
 
 from appdgen.dataset.layout import BUILD_JSON, INDEX, TARGETS
+from appdgen.detect.plumbline import PlumbLine
 from appdgen.util.progress import Progress
 from train import checkpoint, runtime
 from train.errors import TrainError
 from train.model import AppdNet
 from train.nets import image_features
-from appdgen.detect.plumbline import PlumbLine
 
 LOG_COLUMNS = ("step", "train_loss", "val_loss", "val_mae", "lr", "images_per_s")
 
@@ -38,9 +38,9 @@ def total_steps(opts, n_train: int | None, world: int) -> int:
     return max(1, math.ceil(opts.epochs * n_train / (opts.batch * world)))
 
 
-def resumed(run: Path, opts) -> dict | None:
+def resumed(run: Path, opts, size: tuple[int, int]) -> dict | None:
     """run/last.pt with --resume, None to start fresh; refuses to overwrite a run without --resume, and to resume
-    one trained on another --target."""
+    one of the other kind (--online or --shards), on another --target or of another image size (w, h)."""
     last = run / "last.pt"
     if last.exists() and not opts.resume:
         raise TrainError(f"{last} exists: pass --resume to continue it, or choose another --run")
@@ -49,10 +49,17 @@ def resumed(run: Path, opts) -> dict | None:
             print(f"fit: --resume but no {last}; starting fresh", file=sys.stderr)
         return None
     state = checkpoint.load(last)
+    online = bool(state["config"].get("data", {}).get("online"))
+    if online != (opts.online is not None):
+        kind = "--online" if online else "--shards"
+        raise TrainError(f"{last}: a {kind} run; resume it with {kind}, or choose another --run")
     trained = checkpoint.target(state)
     if trained != opts.target:
         raise TrainError(f"{last}: trained on --target {trained}; resume with --target {trained}, or choose another "
                          f"--run")
+    cfg = checkpoint.model_config(state)
+    if (cfg.width, cfg.height) != tuple(size):
+        raise TrainError(f"{last} was trained on {cfg.width}x{cfg.height} images, not {size[0]}x{size[1]}")
     return state
 
 

@@ -53,7 +53,8 @@ class PatchNet(Regressor):
 class PlumbLineNet(nn.Module):
     """Image batch N×C×H×W in [0, 1] → N predictions of the fit's target (% of diagonal) by the plumb-line floor:
     appdgen.detect.plumbline's features of each image, standardised, through its ridge. It has no parameters
-    (nothing for an optimiser): fit solves the ridge (set_floor) and the solution lives in buffers, so a checkpoint holds it."""
+    (nothing for an optimiser): fit solves the ridge (set_floor) and the solution lives in buffers, so a checkpoint
+    holds it."""
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()

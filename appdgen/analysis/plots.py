@@ -124,3 +124,21 @@ def plot_drift(path: Path, tables: Mapping[str, tuple[Sequence[str], np.ndarray,
     fig.colorbar(image, ax=list(axes), label="APPD (raw px)")
     fig.suptitle(title)
     _save(fig, path)
+
+
+def plot_predictions(path: Path, edges: np.ndarray, bins: np.ndarray, y_pred: np.ndarray, threshold: float,
+                     title: str, quantity: str = "APPD") -> None:
+    """Box plots of a detector's predictions (% of the diagonal) per bin of the true label (`bins`: each
+    prediction's bin among `edges`; `quantity`: APPD, or the target learnt) against the identity line."""
+    fig = _figure(7, 5)
+    ax = fig.subplots()
+    groups = [(0.5 * (edges[b] + edges[b + 1]), y_pred[bins == b]) for b in range(len(edges) - 1)]
+    groups = [(c, g) for c, g in groups if len(g)]
+    ax.boxplot([g for _, g in groups], positions=[c for c, _ in groups], widths=0.7 * (edges[1] - edges[0]),
+               manage_ticks=False, showfliers=True, flierprops={"markersize": 2})
+    ax.plot([0, edges[-1]], [0, edges[-1]], "--", color="tab:green", label="ideal")
+    ax.axhline(threshold, color="tab:red", lw=0.8, label=f"threshold {threshold:g}%")
+    ax.set(xlabel=f"true {quantity} (% of diagonal), binned", ylabel=f"predicted {quantity} (% of diagonal)",
+           title=title, xlim=(0, edges[-1]))
+    ax.legend(loc="upper left")
+    _save(fig, path)

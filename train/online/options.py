@@ -45,8 +45,7 @@ class OnlineOptions:
 
 
 #: OnlineOptions that change the data: a resume must keep them (the renderer may change).
-SAME_DATA = ("calib", "images", "camera", "split_by", "size", "ranges", "appd_max", "zero_fraction", "max_fov",
-             "interp", "val_shards", "topic", "every", "min_interval", "start", "end")
+SAME_DATA = tuple(name for name in OnlineOptions.__dataclass_fields__ if name != "render")
 
 
 def pick_render(render: str, interp: str, device: torch.device) -> str:

@@ -10,7 +10,6 @@ import numpy as np
 
 from appdgen.calib.calibration import Calibration
 from appdgen.geometry.appd import px_to_pct
-from appdgen.errors import AppdgenError
 from appdgen.geometry.crop import check_output_size, valid_region
 from appdgen.geometry.remap import remap_image
 from appdgen.sampling.options import SamplingOptions
@@ -20,7 +19,6 @@ from appdgen.sources.frames import RawImage
 from appdgen.sources.inputs import read_images, resolve_inputs
 from appdgen.sources.recordings import FrameChoice
 from appdgen.util.sizes import parse_size
-from train.errors import TrainError
 from train.online.options import OnlineOptions
 
 
@@ -50,17 +48,14 @@ class PairRecipe:
 
 def open_recipe(o: OnlineOptions, target: str = "appd") -> tuple[PairRecipe, list[RawImage]]:
     """The calibration, size, sampling options (checked: reachable --appd-max), the target and the listed raw
-    images."""
-    try:
-        choice = FrameChoice(o.every, o.min_interval, o.start, o.end)
-        inputs = resolve_inputs(o.images, o.calib, o.camera, o.split_by, o.topic, choice, check_grey=False)
-        reference, camera, images = inputs.reference, inputs.camera, list(inputs.images)
-        size = check_output_size(reference, parse_size(o.size) or reference.size)
-        valid_region(reference, max_fov=o.max_fov)
-        recipe = PairRecipe(reference, camera, size, o.sampling(reference), target)
-        recipe.sampler().check_reachable()
-    except AppdgenError as exc:
-        raise TrainError(str(exc)) from None
+    images; appdgen's one-line errors (AppdgenError, which the trainer's CLI prints as its own)."""
+    choice = FrameChoice(o.every, o.min_interval, o.start, o.end)
+    inputs = resolve_inputs(o.images, o.calib, o.camera, o.split_by, o.topic, choice, check_grey=False)
+    reference, camera, images = inputs.reference, inputs.camera, list(inputs.images)
+    size = check_output_size(reference, parse_size(o.size) or reference.size)
+    valid_region(reference, max_fov=o.max_fov)
+    recipe = PairRecipe(reference, camera, size, o.sampling(reference), target)
+    recipe.sampler().check_reachable()
     return recipe, images
 
 
@@ -70,13 +65,6 @@ def decode_frames(images: list[RawImage], threads: int | None = None) -> np.ndar
     if not images:
         return np.zeros((0, 1, 1, 3), np.uint8)
     if any(i.frame is not None for i in images):  # frames of recordings: one pass per recording
-        try:
-            return np.stack(read_images(images, channels=3))
-        except AppdgenError as exc:
-            raise TrainError(str(exc)) from None
+        return np.stack(read_images(images, channels=3))
     with ThreadPoolExecutor(threads or len(os.sched_getaffinity(0))) as pool:
-        try:
-            decoded = list(pool.map(lambda i: read_image(i.path), images))
-        except AppdgenError as exc:
-            raise TrainError(str(exc)) from None
-    return np.stack(decoded)
+        return np.stack(list(pool.map(lambda i: read_image(i.path), images)))

@@ -9,9 +9,9 @@ import numpy as np
 import torch
 
 from train import checkpoint
-from train.data import Selection, StreamSpec, make_loader, open_shards, read_labels, target_labels
+from train.data import build_val_loader
 from train.errors import TrainError
-from train.holdout import frame_sides, val_choice
+from train.holdout import frame_sides
 from train.loop import Trainer, resumed, total_steps
 from train.model import check_size
 from train.online.options import SAME_DATA, OnlineOptions, pick_render
@@ -65,13 +65,8 @@ class OnlineData:
         """Validation batches: the fixed-seed pairs (rendered once) or the offline build's loader."""
         o = self.opts.online
         if o.val_shards:
-            ss = open_shards(o.val_shards)
-            split = val_choice(self.opts.val_split, ss.split_count("val") > 0)
-            if split in ("holdout", "none"):  # no holdout of another build: its val split, else its first
-                split = "val" if ss.split_count("val") else next(iter(ss.build.get("counts", {}).get("splits", {})), "val")
-            labels = target_labels(read_labels(ss.root, self.opts.target), self.opts.target)
-            spec = StreamSpec(ss.for_split(split), Selection(split), self.recipe.size, labels=labels)
-            return make_loader(spec, self.opts.batch, self.opts.workers)
+            return build_val_loader(o.val_shards, self.opts.val_split, self.opts.target, self.recipe.size,
+                                    self.opts.batch, self.opts.workers)
         if self._val is None:
             frames = self.val_frames
             spec = PairSpec(self.recipe, frames, VAL_SEED, self.opts.batch, self.render, count=self.opts.val_max)
@@ -101,20 +96,15 @@ class OnlineData:
                      "n_val": self.plan.n_val}})
 
     def check_resume(self, state: dict, last: Path) -> None:
-        """Refuse a checkpoint whose data differs (another size, field of view, sampling or frames)."""
+        """Refuse a checkpoint whose data differs (another field of view, sampling, frames or seed; the kind of run,
+        target and size: loop.resumed)."""
         started = state["config"].get("fit", {}).get("online") or {}
         changed = [k for k in SAME_DATA if started.get(k) != getattr(self.opts.online, k)]
-        if not state["config"].get("data", {}).get("online"):
-            raise TrainError(f"{last}: an offline (--shards) run; resume it with --shards, or choose another --run")
         if state["config"]["fit"].get("seed") != self.opts.seed:
             changed.append("seed")
         if changed:
             names = ", ".join("--" + k.replace("_", "-") for k in changed)
             raise TrainError(f"{last}: started with another {names}; resume with the same, or choose another --run")
-        cfg = checkpoint.model_config(state)
-        if (cfg.width, cfg.height) != self.recipe.size:
-            raise TrainError(f"{last} was trained on {cfg.width}x{cfg.height} images, not {self.recipe.size[0]}x"
-                             f"{self.recipe.size[1]}")
 
 
 def online_trainer(opts, device: torch.device, rank: int, world: int, run: Path):
@@ -125,7 +115,7 @@ def online_trainer(opts, device: torch.device, rank: int, world: int, run: Path)
     steps = total_steps(opts, data.plan.n_train, world)
     if rank == 0:
         run.mkdir(parents=True, exist_ok=True)
-    state = resumed(run, opts)
+    state = resumed(run, opts, data.recipe.size)
     if state is None:
         state = data.new_state()
     else:

@@ -30,6 +30,7 @@ import os
 import sys
 import time
 from collections.abc import Iterator
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
@@ -77,7 +78,7 @@ class BendOptions:
     library: int = 0  # library draws of each belief's model (0: the Detector's default)
     cache: str = ""  # model cache (default OUT/cache)
     seed: int = 0
-    jobs: int = 1
+    jobs: int = 1  # processes: synthesis, and the beliefs read side by side
 
 
 TINY = dict(frames=6, sequences=2, lens_sequences=2, length=3, scale=0.25, stats=16, baseline=4, window=3,
@@ -235,36 +236,55 @@ def stream_images(images: list[RawImage], first: int, count: int) -> list[RawIma
     return [images[(first + j) % len(images)] for j in range(count)]
 
 
-def read_scene(scene: Scene, o: BendOptions, readers: Readers, log) -> dict:
-    """Every sequence of a scene read per frame and pooled (with and without a baseline on the real axis), the
-    streams of the sequential test, and the true calibration's stream."""
-    L, truth = o.length, scene.recipe.reference
+def read_belief(scene: Scene, o: BendOptions, baseline: Baseline | None, k: int) -> dict | None:
+    """Draw k of a scene as the belief: its sequence read per frame and pooled (with and, on the real axis,
+    without the baseline) while k < the scene's sequences, and its stream when it is above THRESHOLD; None when
+    neither. Also the seconds its model and evidence took, and a line for the log."""
+    L, readers = o.length, Readers(o)
     count = min(scene.sequences, len(scene.images) // L)
-    baseline = None
+    draw = scene.recipe.sampler().draw(scene.seed, k)
+    labels = {t: float(LABELS[t](scene.recipe, draw)) for t in TARGETS}
+    streamed = k < scene.streams and labels["appd"] > THRESHOLD
+    if k >= count and not streamed:
+        return None
+    det = readers.detector(draw.calib, scene.max_fov)
+    evidence = readers.evidence(det, stream_images(scene.images, k * L, L if k < count else 0))
+    variants = {"": baseline} if baseline is None else {"": baseline, " (no baseline)": None}
+    out = {"sequences": {v: {**labels, "frames": [reading(det.read([e], b)) for e in evidence],
+                             "pooled": reading(det.read(evidence, b))} for v, b in variants.items()}
+           if k < count else {}, "stream": None}
+    if streamed:
+        evidence += readers.evidence(det, stream_images(scene.images, k * L + len(evidence),
+                                                        max(0, o.horizon - len(evidence))))
+        found = windows(det, evidence[:o.horizon], baseline, o.window)
+        out["stream"] = {"k": k, "appd": labels["appd"], "frames_to_flag": frames_to_flag(found)}
+    said = f", pooled {out['sequences']['']['pooled']['appd']}" if k < count else ", streamed"
+    return {**out, "model_s": readers.model_s, "evidence_s": readers.evidence_s,
+            "log": f"{scene.name} belief {k + 1}: APPD {labels['appd']:.3f} %{said}"}
+
+
+def read_scene(scene: Scene, o: BendOptions, readers: Readers, log) -> dict:
+    """Every belief of a scene (read_belief; o.jobs processes when > 1) and the true calibration's stream."""
+    from concurrent.futures import ProcessPoolExecutor
+    from functools import partial
+
+    truth, baseline = scene.recipe.reference, None
     if scene.baseline_images:
         ref = readers.detector(truth, scene.max_fov)
         baseline = ref.save_baseline(readers.evidence(ref, list(scene.baseline_images)),
                                      f"{scene.name} frames 0-{len(scene.baseline_images) - 1}")
-    variants = {"": baseline} if baseline is None else {"": baseline, " (no baseline)": None}
-    result = {"sequences": {v: [] for v in variants}, "streams": []}
-    for k in range(max(count, scene.streams)):
-        draw = scene.recipe.sampler().draw(scene.seed, k)
-        labels = {t: float(LABELS[t](scene.recipe, draw)) for t in TARGETS}
-        streamed = k < scene.streams and labels["appd"] > THRESHOLD
-        if k >= count and not streamed:
-            continue
-        det = readers.detector(draw.calib, scene.max_fov)
-        evidence = readers.evidence(det, stream_images(scene.images, k * L, L if k < count else 0))
-        for v, b in variants.items() if k < count else ():
-            result["sequences"][v].append({**labels, "frames": [reading(det.read([e], b)) for e in evidence],
-                                           "pooled": reading(det.read(evidence, b))})
-        if streamed:
-            evidence += readers.evidence(det, stream_images(scene.images, k * L + len(evidence),
-                                                            max(0, o.horizon - len(evidence))))
-            found = windows(det, evidence[:o.horizon], baseline, o.window)
-            result["streams"].append({"k": k, "appd": labels["appd"], "frames_to_flag": frames_to_flag(found)})
-        log(f"{scene.name} belief {k + 1}: APPD {labels['appd']:.3f} %"
-            + (f", pooled {result['sequences'][''][-1]['pooled']['appd']}" if k < count else ", streamed"))
+    task, beliefs = partial(read_belief, scene, o, baseline), range(max(scene.sequences, scene.streams))
+    result = {"sequences": {}, "streams": []}
+    with ProcessPoolExecutor(o.jobs) if o.jobs > 1 else nullcontext() as pool:
+        for found in (pool.map(task, beliefs) if pool else map(task, beliefs)):
+            if found is None:
+                continue
+            for variant, seq in found["sequences"].items():
+                result["sequences"].setdefault(variant, []).append(seq)
+            result["streams"] += [found["stream"]] if found["stream"] else []
+            readers.model_s += found["model_s"]
+            readers.evidence_s += found["evidence_s"]
+            log(found["log"])
     if scene.streams:
         det = readers.detector(truth, scene.max_fov)
         evidence = readers.evidence(det, scene.images)
@@ -368,7 +388,7 @@ def run(o: BendOptions, log=lambda line: print(line, file=sys.stderr, flush=True
     """Synthesise (once), read every scene, score; OUT/summary.json and OUT/readings.json."""
     out = Path(o.out)
     out.mkdir(parents=True, exist_ok=True)
-    start, cpu, version = time.perf_counter(), time.process_time(), detect_version()
+    start, cpu, version = time.perf_counter(), cpu_seconds(), detect_version()
     scenes = street_scenes(o) + real_scene(o) + lens_scenes(o)
     synth_s = time.perf_counter() - start
     readers, readings, means, sizes = Readers(o), {}, {}, {}
@@ -380,12 +400,18 @@ def run(o: BendOptions, log=lambda line: print(line, file=sys.stderr, flush=True
     streams = {a: stream_metrics(r, o) for a, r in readings.items() if r["streams"] or "truth" in r}
     costs = {"options": asdict(o), "axes": list(readings), "detect": version, "synth_s": synth_s,
              "wall_s": time.perf_counter() - start,
-             "cpu_s": time.process_time() - cpu, "models": len(readers.model_s),
+             "cpu_s": cpu_seconds() - cpu, "models": len(readers.model_s),
              "model_s": float(np.sum(readers.model_s)), "evidence_frames": len(readers.evidence_s),
              "evidence_s": float(np.sum(readers.evidence_s))}
     stored = merged(out / "readings.json", {"means": means, "readings": readings})
     summary = merged(out / "summary.json", {"rows": found, "streams": streams, "runs": [costs]})
     return {**summary, **costs}
+
+
+def cpu_seconds() -> float:
+    """CPU seconds of this process and its finished children (the --jobs workers)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 def detect_version() -> dict:

@@ -5,6 +5,8 @@ Arms (ARMS): the paper's CNN at low resolution (348×128 for KITTI), the stride-
 full resolution, the patch network on a dense target (the warp's displacement and its non-affine rest on a coarse
 grid, geometry.bend.warp_field; APPD and bend read off it), and the classical plumb-line floor
 (appdgen.detect.plumbline, when present); the networks on `appd` and on `bend` (geometry.bend.split_warp, % of the raw diagonal).
+The bend-field estimator (appdgen.detect's Detector, no training) is scored on the same axes, draws and metrics by
+studies/bendfield.py (python -m studies.bendfield), which reads the raw frames under each draw as the belief.
 
 Every network arm of a stream sees the same images in the same order: image i of the run is fit --online's pair
 i (train.online.pairs: draw(seed, i) of the build sampler, frame frame_of(seed, i)); each arm is a fit of the

@@ -194,7 +194,7 @@ class Readers:
         if key not in self.detectors:
             extra = {"library_draws": self.library} if self.library else {}
             # the whole library whatever the machine's load: the study's numbers must not depend on it
-            det = Detector(belief, max_fov, cache_dir=self.cache, library_seconds=None, **extra)
+            det = Detector(belief, max_fov, cache_dir=self.cache, **extra)
             self.model_s.append(det.seconds_to_model)
             self.detectors = {**dict(list(self.detectors.items())[-3:]), key: det}
         return self.detectors[key]
@@ -373,7 +373,7 @@ def stream_table(found: dict[str, dict]) -> str:
              "|---|---:|---:|---:|---:|---:|"]
     pct = lambda v: "—" if v is None else f"{v:.2f} %"  # noqa: E731
     for axis, s in found.items():
-        median = "—" if s["median_frames"] is None else f"{s['median_frames']:.0f}"
+        median = "—" if s["median_frames"] is None else f"{s['median_frames']:g}"
         truth = (f"{s['false_alarms_per_1000']:.0f} ({s['windows']} windows) | {s['sequences_flagged']} of "
                  f"{s['sequences']} | {pct(s['truth_frame_appd'])} / {pct(s['truth_window_appd'])}"
                  if "windows" in s else "— | — | —")

@@ -62,7 +62,9 @@ test-heavy: $(TRAIN_STAMP)
 # calibration file is written last); the streets and draws are the unseen axis of studies.detector. The fit's
 # 300 pairs are also its --stats-samples: the mean predictor it is scored against is their label mean. 32 unseen
 # sequences: the first 16 miscalibrations alone flatter the floor (docs/training.md). ~5 min on 2 cores; 1,200
-# pairs gained 0.01-0.03 of the ratios, inside their standard error, for 4x the fitting time.
+# pairs gained 0.01-0.03 of the ratios, inside their standard error, for 4x the fitting time. The last lines add the
+# bend-field estimator (appdgen.detect, no training; studies.bendfield) on the same unseen streets and draws: a model
+# per belief (~12 CPU s each, cached in runs/train/bendfield), 2 processes (docs/studies/bend-field-detector.md).
 FLOOR := runs/train
 FLOOR_TRAIN := $(FLOOR)/raw/train
 FLOOR_UNSEEN := $(FLOOR)/raw/unseen
@@ -89,6 +91,10 @@ train: $(TRAIN_STAMP) $(FLOOR_TRAIN)/calibration.yaml $(FLOOR_UNSEEN)/calibratio
 		line += '%.2f per sequence of %d frames (median; %d sequences); details in %s'; \
 		print(line % (sys.argv[2], chr(39), d['mae_vs_mean_predictor'], s['median_vs_mean_predictor'], \
 		s['length'], s['count'], sys.argv[1]))" $(FLOOR)/$$t/eval.json $$t; done
+	@$(PY) -m studies.bendfield --streets $(FLOOR)/raw --axes unseen --lenses "" --no-sequential --jobs 2 \
+		--out $(FLOOR)/bendfield --lines > $(FLOOR)/bendfield.txt 2> $(FLOOR)/bendfield.log \
+		|| (tail -3 $(FLOOR)/bendfield.log; exit 1)
+	@sed 's/^/make train, /' $(FLOOR)/bendfield.txt
 
 # The paper's CNN on the demo shards (the recipe make train had until the detector comparison): within 15 minutes on
 # 2 CPU cores (--max-minutes stops early, still validated and checkpointed); it stays at the mean predictor.

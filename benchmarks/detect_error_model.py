@@ -83,7 +83,7 @@ def main() -> None:
     for j in range(args.beliefs + args.sequences):
         kind = "frame" if j < args.beliefs else "sequence"
         belief = sampler.draw(FIT_SEED, j).calib
-        det = Detector(belief, cache_dir=args.cache, library_seconds=None)  # the full library, whatever the load
+        det = Detector(belief, cache_dir=args.cache)  # the full library, whatever the load
         c_true = true_coefficients(det, true)
         prior = np.diag(1.0 / det.model.var)
         groups = ([[(j * args.per_belief + m) * 7 % nf] for m in range(args.per_belief)] if kind == "frame"

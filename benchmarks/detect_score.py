@@ -95,7 +95,7 @@ class Frames:
     def evidence(self, det: Detector, i: int) -> Evidence:
         """Frame i's evidence under a detector's belief (cached)."""
         tag = hashlib.sha1(f"{self.names[i]} {det.edge_params}".encode()).hexdigest()[:16]
-        path = self.cache / "evidence" / f"{model_key(det.belief, det.max_fov, budget=None)}-{tag}.npz"
+        path = self.cache / "evidence" / f"{model_key(det.belief, det.max_fov)}-{tag}.npz"
         if path.exists():
             with np.load(path) as z:
                 pts = EdgePoints(**{k: z[k] for k in EdgePoints.__dataclass_fields__})
@@ -149,7 +149,7 @@ def main() -> None:
     calib = args.calib or str(Path(args.frames) / "calibration.yaml")
     frames = Frames(args.frames, calib, args.cache)
     true, nf = frames.true, len(frames.raw)
-    ref = Detector(true, cache_dir=args.cache, library_seconds=None)
+    ref = Detector(true, cache_dir=args.cache)
     test = list(range(nf))
     baseline = None
     if args.baseline_frames:
@@ -163,8 +163,8 @@ def main() -> None:
     solve_seconds: list[float] = []
 
     def run(kind: str, belief: Calibration, appd_px: float, idx: list[int], det: Detector | None = None) -> None:
-        det = det or Detector(belief, cache_dir=args.cache, library_seconds=None)
-        key = model_key(belief, None, budget=None)
+        det = det or Detector(belief, cache_dir=args.cache)
+        key = model_key(belief, None)
         mean_label[key] = float(det.model.appd.mean())
         ev = [frames.evidence(det, i) for i in idx]
         t0 = time.perf_counter()
@@ -179,7 +179,7 @@ def main() -> None:
 
     for j in range(args.beliefs):
         d = sampler.draw(FRAME_SEED, j)
-        det = Detector(d.calib, cache_dir=args.cache, library_seconds=None)
+        det = Detector(d.calib, cache_dir=args.cache)
         for m in range(args.per_belief):
             run("frame", d.calib, d.appd_px, [test[(j * args.per_belief + m) * 7 % len(test)]], det)
         print(f"  belief {j + 1}/{args.beliefs} {time.time() - start:.0f} s", flush=True)

@@ -187,3 +187,16 @@ def test_a_fisheye_model_builds():
     assert model.coefs.shape[0] >= 55 and np.isfinite(model.basis).all()
     assert 0 < model.appd.mean() < 1.2 and model.bend.mean() < model.appd.mean()
     assert model.names == eucm.param_names
+
+
+def test_the_library_size_is_the_beliefs_not_the_clocks(camera: Calibration):
+    """The same belief reads the same on any machine: the library's size follows its lens model and raw size."""
+    from appdgen.detect.model import LEAST_DRAWS, LENS_DRAWS, default_draws, model_key
+
+    kitti = default_calibration()
+    assert default_draws(kitti) == LENS_DRAWS["radtan"] == default_draws(camera)  # KITTI's size and smaller: all
+    big = Calibration(2880, 1860, 2000.0, 2000.0, 1440.0, 930.0, model="rational")
+    assert default_draws(big) == round(LENS_DRAWS["rational"] * 1392 * 512 / (2880 * 1860))
+    huge = Calibration(8000, 6000, 5000.0, 5000.0, 4000.0, 3000.0)
+    assert default_draws(huge) == LEAST_DRAWS
+    assert model_key(kitti, None) == model_key(kitti, None, LENS_DRAWS["radtan"]) != model_key(kitti, None, 40)

@@ -17,7 +17,7 @@ from appdgen.calib.calibration import Calibration
 from appdgen.detect.baseline import Baseline
 from appdgen.detect.edges import EdgeParams, EdgePoints, edge_points
 from appdgen.detect.errormodel import MIN_SEGMENTS, kappa
-from appdgen.detect.model import BUDGET_SECONDS, LIBRARY_DRAWS, FieldModel, belief_crop, cached_model
+from appdgen.detect.model import FieldModel, belief_crop, cached_model
 from appdgen.detect.posterior import posterior
 from appdgen.detect.solve import Design, Estimate, SolveParams, pool, solve
 from appdgen.detect.tracks import track_ids
@@ -84,14 +84,12 @@ class Detector:
     """Reads how far a believed calibration is from the camera that took the frames, from straight edges."""
 
     def __init__(self, belief: Calibration, max_fov: float | None = None, *, cache_dir: Path | None = None,
-                 progress: Callable[[str], None] | None = None, library_draws: int = LIBRARY_DRAWS,
-                 library_seconds: float | None = BUDGET_SECONDS) -> None:
+                 progress: Callable[[str], None] | None = None, library_draws: int | None = None) -> None:
         start = time.perf_counter()
         self.belief = belief
         self.max_fov = max_fov
         self.model: FieldModel
-        self.model, self.cached = cached_model(belief, max_fov, cache_dir, progress, library_draws,
-                                                library_seconds)
+        self.model, self.cached = cached_model(belief, max_fov, cache_dir, progress, library_draws)
         self.rect = rectify(belief, crop=belief_crop(belief, max_fov))
         self.edge_params = EdgeParams()
         self.solve_params = SolveParams()

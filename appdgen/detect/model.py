@@ -35,13 +35,15 @@ from appdgen.sampling.sampler import Sampler
 from appdgen.util.atomic import write_file
 
 #: Bump when the model's content or meaning changes: older cache files are then ignored.
-MODEL_VERSION = 2  # (the budget leaves KITTI's 1,000-draw models as they were)
+MODEL_VERSION = 3  # 3: the library's size is fixed by the belief (lens model, raw size), never by the clock
 LIBRARY_SEED = 4242  # library draw i is Sampler(belief).draw(LIBRARY_SEED, i)
-LIBRARY_DRAWS = 1000  # draws at most: ~12 s for KITTI's radtan on one core
-#: Seconds of drawing after which the library stops short of LIBRARY_DRAWS (lenses whose crops and searches cost
-#: more: a 2880×1860 rational camera ~150 ms a draw, EUCM ~30 ms), so that a model is ready within ~20 s; it keeps
-#: at least LEAST_DRAWS. The library's size is then the machine's: a cached model is reused as it is.
-BUDGET_SECONDS = 14.0
+LIBRARY_DRAWS = 1000  # draws of a radtan camera of KITTI's size or smaller: ~12 s on one idle core
+#: Draws per lens model at KITTI's raw size or smaller: each lens's crop search and label cost differ (measured
+#: 2026-12-03 on one core at load ~8: EUCM ~53 ms a draw, KB4 ~101 ms, radtan ~12 ms at 1392x512), so that a model
+#: is ready in ~20 s on one core. Larger cameras get proportionally fewer (a 2880x1860 rational camera ~155 ms a
+#: draw), never fewer than LEAST_DRAWS. The size depends on the belief only: the same belief always reads the same.
+LENS_DRAWS = {"radtan": LIBRARY_DRAWS, "rational": LIBRARY_DRAWS, "kb4": 200, "ds": 300, "eucm": 300}
+REFERENCE_PIXELS = 1392 * 512
 LEAST_DRAWS = 100
 COMPONENTS = 12  # PCA components of the field
 GRID_SPACING = 32.0  # output px between field grid nodes (corners included)
@@ -106,11 +108,18 @@ def belief_crop(belief: Calibration, max_fov: float | None) -> Crop:
     return valid_region(belief, max_fov=max_fov)
 
 
-def build_model(belief: Calibration, max_fov: float | None = None, draws: int = LIBRARY_DRAWS,
-                components: int = COMPONENTS, progress: Callable[[str], None] | None = None,
-                budget: float | None = BUDGET_SECONDS) -> FieldModel:
-    """Draw the library around the belief (at most `draws`, within `budget` seconds unless None), label it and
-    fit the field basis."""
+def default_draws(belief: Calibration) -> int:
+    """The library size of a belief: LENS_DRAWS of its lens model, fewer for a raw size above KITTI's."""
+    w, h = belief.size
+    most = LENS_DRAWS[belief.model]
+    return max(LEAST_DRAWS, min(most, round(most * REFERENCE_PIXELS / (w * h))))
+
+
+def build_model(belief: Calibration, max_fov: float | None = None, draws: int | None = None,
+                components: int = COMPONENTS, progress: Callable[[str], None] | None = None) -> FieldModel:
+    """Draw the library around the belief (`draws`, default_draws(belief) when None), label it and fit the field
+    basis."""
+    draws = default_draws(belief) if draws is None else draws
     start = time.perf_counter()
     sampler = Sampler(belief, max_fov=max_fov)
     crop_b = belief_crop(belief, max_fov)
@@ -119,8 +128,6 @@ def build_model(belief: Calibration, max_fov: float | None = None, draws: int = 
     base = np.array(list(belief.params().values()))
     fields, appd, bend, offsets = [], [], [], []
     for i in range(draws):
-        if budget is not None and i >= LEAST_DRAWS and time.perf_counter() - start > budget:
-            break
         try:
             d = sampler.draw(LIBRARY_SEED, i)
         except UnreachableError:  # a target at the very top of what the belief's ranges reach: not a hypothesis
@@ -162,14 +169,12 @@ def principal_axes(centred: np.ndarray, components: int) -> np.ndarray:
     return axes.T
 
 
-def model_key(belief: Calibration, max_fov: float | None, draws: int = LIBRARY_DRAWS,
-              budget: float | None = BUDGET_SECONDS) -> str:
-    """Cache key of a belief's model: its parameters, size, lens model, max_fov, library size and budget, and the
-    model version."""
-    fields = {"calib": belief.to_dict(), "max_fov": max_fov, "version": MODEL_VERSION, "draws": draws,
-              "components": COMPONENTS, "spacing": GRID_SPACING}
-    if budget is not None:  # a library cut short by time is not the full one
-        fields["budget"] = budget
+def model_key(belief: Calibration, max_fov: float | None, draws: int | None = None) -> str:
+    """Cache key of a belief's model: its parameters, size, lens model, max_fov, library size and the model
+    version."""
+    fields = {"calib": belief.to_dict(), "max_fov": max_fov, "version": MODEL_VERSION,
+              "draws": default_draws(belief) if draws is None else draws, "components": COMPONENTS,
+              "spacing": GRID_SPACING}
     text = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
@@ -206,14 +211,14 @@ def save_model(model: FieldModel, path: Path) -> bool:
 
 
 def cached_model(belief: Calibration, max_fov: float | None, cache_dir: Path | None,
-                 progress: Callable[[str], None] | None = None, draws: int = LIBRARY_DRAWS,
-                 budget: float | None = BUDGET_SECONDS) -> tuple[FieldModel, bool]:
+                 progress: Callable[[str], None] | None = None, draws: int | None = None
+                 ) -> tuple[FieldModel, bool]:
     """The belief's model from the cache, else built (and cached when the folder is writable); (model, was_cached)."""
-    key = model_key(belief, max_fov, draws, budget)
+    key = model_key(belief, max_fov, draws)
     path = (cache_dir if cache_dir is not None else default_cache_dir()) / f"field-{key}.npz"
     model = load_model(path)
     if model is not None:
         return model, True
-    model = build_model(belief, max_fov, draws, progress=progress, budget=budget)
+    model = build_model(belief, max_fov, draws, progress=progress)
     save_model(model, path)
     return model, False

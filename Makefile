@@ -55,13 +55,13 @@ test-slow: $(TRAIN_STAMP)
 test-heavy: $(TRAIN_STAMP)
 	$(PY) -m pytest -q -m heavy
 
-# The best detector measured (docs/training.md, "The detector comparison"): the plumb-line floor, a ridge on line
+# The best detector measured (docs/studies/detector-comparison.md): the plumb-line floor, a ridge on line
 # curvature (fit --model plumbline) fitted on fresh pairs of full-size synthetic streets (at 348x128 it sits at the
 # mean predictor: the bend it reads is below a pixel there), once on appd and once on bend; each scored on unseen
 # streets per frame and per sequence (10 frames under one miscalibration). The frames are made once (their
 # calibration file is written last); the streets and draws are the unseen axis of studies.detector. The fit's
 # 300 pairs are also its --stats-samples: the mean predictor it is scored against is their label mean. 32 unseen
-# sequences: the first 16 miscalibrations alone flatter the floor (docs/training.md). ~5 min on 2 cores; 1,200
+# sequences: the first 16 miscalibrations alone flatter the floor (docs/studies/detector-comparison.md). ~5 min on 2 cores; 1,200
 # pairs gained 0.01-0.03 of the ratios, inside their standard error, for 4x the fitting time. The last lines add the
 # bend-field estimator (appdgen.detect, no training; studies.bendfield) on the same unseen streets and draws: a model
 # per belief (~12 CPU s each, cached in runs/train/bendfield), 2 processes (docs/studies/bend-field-detector.md).
@@ -118,7 +118,7 @@ train-one-scene: $(TRAIN_STAMP)
 		--max-minutes 3 --quiet
 	$(PY) -m train evaluate --ckpt $(ONE)/run/last.pt --shards $(ONE)/shards --split test --json $(ONE)/eval.json
 
-# The accelerator experiment (docs/training.md): full-size synthetic KITTI 02 frames, samples, a timed fit of the
+# The accelerator experiment (docs/studies/accelerator-experiment.md): full-size synthetic KITTI 02 frames, samples, a timed fit of the
 # paper's CNN, test MAE vs the mean predictor in one line. Sized to end within 9 minutes on one H200 with 16 cores.
 # Sizes are flags of `python -m studies.experiment` (ARGS="--minutes 3 --samples 8000" ...).
 paper-scale: $(TRAIN_STAMP)
@@ -128,12 +128,12 @@ paper-scale: $(TRAIN_STAMP)
 paper-scale-tiny: $(TRAIN_STAMP)
 	$(PY) -m studies.experiment --tiny --out runs/paper-scale-tiny --overwrite $(ARGS)
 
-# The detector comparison (docs/training.md, issue 23) for the accelerator: every arm (paper CNN at 348x128, patch
+# The detector comparison (docs/studies/detector-comparison.md, issue 23) for the accelerator: every arm (paper CNN at 348x128, patch
 # network at 1392x512 on appd, bend and the dense field, the plumb-line floor) on --samples fresh pairs each.
 paper-scale-detector: $(TRAIN_STAMP)
 	$(PY) -m studies.experiment --detector --out runs/paper-scale-detector --samples 8000 $(ARGS)
 
-# The same comparison on 2 CPU cores (the table in docs/training.md), and its few-minute smoke run.
+# The same comparison on 2 CPU cores (the table in docs/studies/detector-comparison.md), and its few-minute smoke run.
 detector: $(TRAIN_STAMP)
 	nice -n 10 $(PY) -m studies.detector --images 6000 --frames 300 --sequences 32 --out runs/detector $(ARGS)
 
@@ -150,7 +150,7 @@ detect-study-tiny: $(TRAIN_STAMP)
 	$(PY) -m studies.bendfield --tiny --out runs/bendfield-tiny $(ARGS)
 
 # Wheels the accelerator machine lacks (its python3 has CUDA torch, OpenCV, pyarrow, click, joblib, pyyaml but not
-# webdataset): pure-Python, carried in .whl/ (git-ignored). See docs/training.md, "Running it on the accelerator".
+# webdataset): pure-Python, carried in .whl/ (git-ignored). See docs/studies/accelerator-experiment.md.
 device-wheels: $(STAMP)
 	$(PY) -m pip download -q --no-deps --only-binary=:all: -d .whl webdataset==1.0.2 braceexpand==0.1.7
 

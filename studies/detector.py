@@ -64,7 +64,7 @@ RECAL_SEED = 7005
 TUNE_SEED = 7006
 #: Synth seed offsets: the training streets and the unseen ones.
 TRAIN_SYNTH, TEST_SYNTH = 101, 202
-#: Rendering interpolation: bicubic, 3.4× cheaper than Lanczos at 1392×512 (docs/training.md), as paper-scale's.
+#: Rendering interpolation: bicubic, 3.4× cheaper than Lanczos at 1392×512 (docs/studies/online-vs-offline.md), as paper-scale's.
 INTERP = "cubic"
 
 

@@ -33,7 +33,7 @@ SPLIT_SEEDS = {"train": 0, "val": 1, "test": 2}
 
 @dataclass(frozen=True)
 class ExperimentOptions:
-    """Sizes of every stage; the defaults are the accelerator run sized in docs/training.md."""
+    """Sizes of every stage; the defaults are the accelerator run sized in docs/studies/accelerator-experiment.md."""
 
     out: str = "runs/paper-scale"
     frames: int = 2000  # train frames (full-size KITTI 02 scenes)

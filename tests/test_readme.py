@@ -17,7 +17,7 @@ from appdgen.dataset.layout import INDEX_ONLY, label_schema
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 #: The pages: the README and the manual under docs/.
-PAGES = (ROOT / "README.md", *sorted(DOCS.glob("*.md")))
+PAGES = (ROOT / "README.md", *sorted(DOCS.rglob("*.md")))
 #: Every marked block (<!-- name --> … <!-- /name -->) and the page that holds it; a test below reads each.
 BLOCKS = {"quickstart": "README.md", "pandas": "README.md", "python": "README.md",
           "reading-a-build": "docs/output-format.md", "label-columns": "docs/output-format.md",

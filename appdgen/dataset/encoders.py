@@ -22,7 +22,7 @@ from appdgen.errors import AppdgenError
 OPENCV_PNG_LEVEL = 1
 #: libdeflate level of the libdeflate encoder: level 1 was the fastest and the smallest of levels 1-3 over remapped
 #: street frames (Sub filter: 30.9 / 49.6 ms and 1095.5 / 1097.9 kB a 1392x512 sample at levels 1 / 2; level 3 was
-#: slower still and levels 2-4 larger than 1 at 348x128 too; docs/performance.md).
+#: slower still and levels 2-4 larger than 1 at 348x128 too; docs/studies/build-performance-history.md).
 LIBDEFLATE_LEVEL = 1
 #: The eight bytes every PNG file starts with.
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -75,7 +75,7 @@ class BendOptions:
     axes: tuple[str, ...] = AXES
     lenses: tuple[str, ...] = tuple(LENSES)
     sequential: bool = True  # run the sequential test
-    library: int = 0  # library draws of each belief's model (0: the Detector's default)
+    library: int = 0  # library draws of each belief's model (0: the Detector's default for its lens and size)
     cache: str = ""  # model cache (default OUT/cache)
     seed: int = 0
     jobs: int = 1  # processes: synthesis, and the beliefs read side by side
@@ -193,7 +193,6 @@ class Readers:
         key = (belief, max_fov)
         if key not in self.detectors:
             extra = {"library_draws": self.library} if self.library else {}
-            # the whole library whatever the machine's load: the study's numbers must not depend on it
             det = Detector(belief, max_fov, cache_dir=self.cache, **extra)
             self.model_s.append(det.seconds_to_model)
             self.detectors = {**dict(list(self.detectors.items())[-3:]), key: det}

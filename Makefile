@@ -64,7 +64,8 @@ test-heavy: $(TRAIN_STAMP)
 # sequences: the first 16 miscalibrations alone flatter the floor (docs/studies/detector-comparison.md). ~5 min on 2 cores; 1,200
 # pairs gained 0.01-0.03 of the ratios, inside their standard error, for 4x the fitting time. The last lines add the
 # bend-field estimator (appdgen.detect, no training; studies.bendfield) on the same unseen streets and draws: a model
-# per belief (~12 CPU s each, cached in runs/train/bendfield), 2 processes (docs/studies/bend-field-detector.md).
+# per belief (~12 CPU s each, cached in runs/train/bendfield), 2 processes: ~700 CPU s, ~6 min on 2 idle cores
+# uncached (docs/studies/bend-field-detector.md).
 FLOOR := runs/train
 FLOOR_TRAIN := $(FLOOR)/raw/train
 FLOOR_UNSEEN := $(FLOOR)/raw/unseen

@@ -36,8 +36,8 @@ demo: $(STAMP)
 # `/usr/bin/time .venv/bin/python -m pytest -q -m "not slow" --durations=30`: 796 tests, 6.7 min of CPU (user+sys),
 # 13.1 min wall on 2 cores shared with four other sessions (load average ~7); on idle cores the CPU time bounds the
 # wall time (one test at a time). The whole suite before `slow` was left out: 11.5 min of CPU, 20.5 min wall.
-# Later the same day, `time CI=true bash .ci/run` in a fresh clone: 858 passed in 6 min 53 s, 8 min 53 s with set-up
-# (load ~8; docs/performance.md, "The two commands").
+# Later the same day, `time CI=true bash .ci/run` in a fresh clone: 858 passed in 4 min 34 s, 6 min 42 s with set-up
+# (load ~2; at load ~8: 6 min 53 s and 8 min 53 s; docs/performance.md, "The two commands").
 test: $(TRAIN_STAMP)
 	$(PY) -m pytest -q -m "not slow"
 

@@ -152,3 +152,15 @@ def test_the_offline_loaders_png_decoder_gives_opencvs_pixels(channels: int) -> 
         pytest.skip("pyspng not installed: the loader used OpenCV")
     with pytest.raises(Exception, match="shard: sample: not a readable image"):
         data.decode_sample(png[:40], "png", "shard: sample")
+
+
+def test_a_missing_listed_image_says_where_relative_paths_are_read_from(tmp_path):
+    """A list written with paths relative to the working folder: the one line says the list's folder is the base."""
+    from appdgen.sources.files import check_images, list_images
+
+    listing = tmp_path / "lists" / "frames.txt"
+    listing.parent.mkdir()
+    listing.write_text("../shared/frame.png\n")
+    with pytest.raises(AppdgenError, match=r"frame\.png: cannot read image .*relative paths in a list file are "
+                                           r"read from the list's folder \(use --skip-bad"):
+        check_images(list_images(str(listing)), (8, 8), skip_bad=False)

@@ -87,8 +87,9 @@ CALIB_HELP = ("Calibration file (KITTI, OpenCV YAML/XML, ROS, Kalibr, EuRoC, Bas
 calib_option = click.option("--calib", "calib_path", required=True, type=click.Path(dir_okay=False), help=CALIB_HELP)
 
 IMAGES_HELP = ("Raw images: a folder (recursive), a glob pattern, or a list file ('PATH [SPLIT]' per line, or "
-               "'PATH<TAB>SPLIT' for paths with spaces); or a recording: a ROS 1 .bag, a ROS 2 bag folder or "
-               ".db3/.mcap file (appdgen[ros]), a video file (appdgen[video]).")
+               "'PATH<TAB>SPLIT' for paths with spaces; relative paths are read from the list's folder); or a "
+               "recording: a ROS 1 .bag, a ROS 2 bag folder or .db3/.mcap file (appdgen[ros]), a video file "
+               "(appdgen[video]).")
 images_option = click.option("--images", "images_spec", required=True, help=IMAGES_HELP)
 
 

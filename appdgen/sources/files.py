@@ -122,11 +122,18 @@ def check_images(images: list[RawImage], size: tuple[int, int], skip_bad: bool) 
         elif skip_bad:
             dropped.append({"path": str(image.path), "problem": problem})
         else:
-            raise AppdgenError(f"{image.path}: {problem} (use --skip-bad to skip such images)")
+            raise AppdgenError(f"{image.path}: {problem}{_missing_hint(image)} (use --skip-bad to skip such images)")
     if not kept:
         first = f"{dropped[0]['path']}: {dropped[0]['problem']}" if dropped else "none given"
         raise AppdgenError(f"no usable image left: {first}")
     return kept, dropped
+
+
+def _missing_hint(image: RawImage) -> str:
+    """For a missing file named by a relative path: where such a path is read from (a list file's folder)."""
+    if image.frame is not None or image.path.exists() or Path(image.name).is_absolute():
+        return ""
+    return "; relative paths in a list file are read from the list's folder"
 
 
 def _jpeg_body_problem(path: Path) -> str | None:

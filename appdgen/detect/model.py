@@ -12,6 +12,7 @@ labels the belief-rectified sample of a reference Θt) and its parameter offsets
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import io
 import json
@@ -103,8 +104,10 @@ def field_grid(calib: Calibration, spacing: float = GRID_SPACING) -> tuple[np.nd
             np.linspace(0.0, h - 1.0, int(round((h - 1) / spacing)) + 1))
 
 
+@functools.lru_cache(maxsize=16)
 def belief_crop(belief: Calibration, max_fov: float | None) -> Crop:
-    """The crop `appdgen build` gives the reference under --max-fov: the one the detector rectifies with."""
+    """The crop `appdgen build` gives the reference under --max-fov: the one the detector rectifies with (cached:
+    a baseline's reading maps every frame's points through the REF's and the belief's crops, a search each)."""
     return valid_region(belief, max_fov=max_fov)
 
 

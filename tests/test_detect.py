@@ -99,7 +99,7 @@ def test_true_calibration_reads_near_zero(truth: Detector, frames):
 
 
 def test_a_known_perturbation_is_recovered_in_sign_and_size(camera: Calibration, frames, cache):
-    belief = camera.replace(k1=camera.k1 * 0.85)  # the belief's k1 is off by 15 %: true − belief = −0.15·k1 > 0
+    belief = camera.replace(k1=camera.k1 * 0.85)  # the belief's k1 is off by 15 %: true − belief = 0.15·k1 < 0 (k1 < 0)
     label = appd(camera, belief)[1]
     det = Detector(belief, cache_dir=cache, library_draws=DRAWS)
     r = det.read([det.evidence(f) for f in frames])

@@ -16,11 +16,11 @@ import numpy as np
 from appdgen.calib.calibration import Calibration
 from appdgen.detect.baseline import Baseline
 from appdgen.detect.edges import EdgeParams, EdgePoints, edge_points
-from appdgen.detect.errormodel import MIN_SEGMENTS, kappa
+from appdgen.detect.errormodel import MIN_SEGMENTS, SCENE_FLOOR, likelihood
 from appdgen.detect.model import FieldModel, belief_crop, cached_model
 from appdgen.detect.posterior import posterior
 from appdgen.detect.solve import Design, Estimate, SolveParams, pool, solve
-from appdgen.detect.tracks import track_ids
+from appdgen.detect.tracks import track_ids, travel
 from appdgen.errors import AppdgenError
 from appdgen.geometry.maps import rectify
 from appdgen.geometry.remap import remap_image
@@ -29,6 +29,9 @@ from appdgen.sources.decode import as_channels
 DEFAULT_THRESHOLD_PCT = 0.5  # APPD in % of the raw diagonal above which a belief is "miscalibrated"
 DEFAULT_SEQUENCE = 10  # frames pooled per sequence
 SURE = 0.95  # p_above at or over this: "miscalibrated"; at or under 1 − SURE: "ok"
+#: px: a sequence whose scene edges move less than this (median, normal to themselves) is a hover.
+HOVER_PX = 6.0
+HOVER = "frames barely move: a scene edge's own curvature cannot be told from lens bend"
 
 
 @dataclass(frozen=True)
@@ -56,14 +59,16 @@ class Reading:
     threshold_pct: float
     offsets: dict[str, tuple[float, float]]
     reason: str | None
+    can_flag: bool = True  # False: the evidence cannot tell the scene from the lens (a hover without a baseline)
 
     @property
     def verdict(self) -> str:
-        """"abstain", "miscalibrated" (p_above ≥ 0.95), "ok" (p_above ≤ 0.05) or "uncertain"."""
+        """"abstain", "miscalibrated" (p_above ≥ 0.95 where the evidence can flag), "ok" (p_above ≤ 0.05) or
+        "uncertain"."""
         if self.appd_pct is None or self.p_above is None:
             return "abstain"
         if self.p_above >= SURE:
-            return "miscalibrated"
+            return "miscalibrated" if self.can_flag else "uncertain"
         return "ok" if self.p_above <= 1.0 - SURE else "uncertain"
 
     def to_dict(self) -> dict:
@@ -119,12 +124,18 @@ class Detector:
 
     def estimate(self, evidence: Sequence[Evidence], baseline: Baseline | None = None) -> Estimate:
         """The pooled robust solve of the frames' evidence."""
+        return self._solve(evidence, baseline)[0]
+
+    def _solve(self, evidence: Sequence[Evidence], baseline: Baseline | None) -> tuple[Estimate, float]:
+        """The pooled robust solve and how far its scene edges travel (px; tracks.travel)."""
         used = [e.points for e in evidence if e.segments]
         if not used:
             k = len(self.model.var)
-            return solve(Design(np.zeros(0), np.zeros((0, k)), np.zeros(0), np.zeros(0, int), 0), self.model.var)
+            empty = Design(np.zeros(0), np.zeros((0, k)), np.zeros(0), np.zeros(0, int), 0)
+            return solve(empty, self.model.var), 0.0
+        ids = track_ids(used)
         designs = [self.design(p, baseline) for p in used]
-        return solve(pool(designs, track_ids(used)), self.model.var, self.solve_params)
+        return solve(pool(designs, ids), self.model.var, self.solve_params), travel(used, ids)
 
     def read(self, evidence: Sequence[Evidence], baseline: Baseline | None = None,
              threshold_pct: float = DEFAULT_THRESHOLD_PCT) -> Reading:
@@ -134,14 +145,16 @@ class Detector:
         frames, found = len(evidence), sum(e.segments for e in evidence)
         if found == 0:
             return abstention(frames, 0, threshold_pct, "no straight edges found (blank or featureless image)")
-        est = self.estimate(evidence, baseline)
+        est, moved = self._solve(evidence, baseline)
         if est.segments < MIN_SEGMENTS:
             return abstention(frames, est.segments, threshold_pct,
                               f"too few straight segments ({est.segments} < {MIN_SEGMENTS})")
-        post = posterior(self.model, est.h, est.g, kappa(est, frames), threshold_pct)
+        post = posterior(self.model, likelihood(est, self.model.coefs, self.model.var, SCENE_FLOOR), threshold_pct)
         offsets = {n: (float(m), float(s)) for n, m, s in zip(self.model.names, post.offsets, post.offsets_sd)}
+        hover = frames > 1 and moved < HOVER_PX
+        reason = (HOVER if baseline is not None else f"{HOVER} (no flag without a baseline)") if hover else None
         return Reading(frames, est.segments, post.appd, post.appd_sd, post.bend, post.bend_sd, post.p_above,
-                       threshold_pct, offsets, None)
+                       threshold_pct, offsets, reason, not hover or baseline is not None)
 
     def save_baseline(self, evidence: Sequence[Evidence], source: str) -> Baseline:
         """How this camera and its scenery read under the calibration it was calibrated with (belief = REF)."""

@@ -1,26 +1,83 @@
-"""The estimator's error model: how much the solve's Gaussian likelihood is tempered (κ) before it weighs the
-library, and the least evidence worth a number.
+"""The estimator's error model: what the solve's evidence on the field's coefficients is worth.
 
-The solve's likelihood treats edge points as independent and the field's basis as exact; on simulation its
-errors on the field's coefficients are ~20× (one frame) to ~75× (ten frames) its own variance, and grow with the
-frames pooled (errors that do not average out: the basis' truncation, the library's spacing, edges shared by the
-scene). κ = KAPPA_FRAME · frames^KAPPA_POWER makes the tempered posterior on the coefficients calibrated (mean
-normalised Mahalanobis distance of the true coefficients 1), fitted on training streets by
+The solve's likelihood treats edge points as independent; on real frames they are not (a scene edge is seen in many
+frames, its points share its own curvature) and scenes add an apparent field of their own. Two terms replace it:
 
-    appdgen synth --frames 60 --seed 101 --out /tmp/det/train --jobs 1 --quiet
-    python benchmarks/detect_error_model.py --frames /tmp/det/train      # 2026-12-03: 48 frames, 8 sequences
-      -> calibrated kappa: frame 22.8, sequence (10 frames) 94.4; kappa = 22.8 * frames ** 0.616
+* the robust (sandwich) information H M⁻¹ H of the solve, its meat M the score's spread over scene edges (tracks),
+  so that one edge seen in fifty frames counts once, whatever the frames: this one shrinks with independent edges;
+* a scene term D that does not shrink with frames: the scenery's apparent field and the file's own error. Neither
+  its size nor its shape is known: D_k = φ² λ̄^(1−γ) λ_k^γ (λ_k the prior's variance of component k, λ̄ their mean;
+  γ = 1 a field shaped like the lens's, γ = 0 one that reaches the fine components as much as the coarse ones) is
+  integrated over a grid of φ from a floor up to
+  PHI_MAX and of γ, each weighted by how well the library explains the reading under it. A reading no
+  miscalibration of the prior explains (a scene's own field) thus widens its own uncertainty instead of collapsing
+  onto the nearest draw, and the floor keeps the posterior over the library smooth in the reading (a kernel
+  regression over the library: no reading rests on one draw).
+
+The reading is then c_read ~ N(c, (H M⁻¹ H)⁻¹ + D); the posterior is over the library's draws c_i (the prior) and φ.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
 
 from appdgen.detect.solve import Estimate
 
 #: Fewer segments used by the solve than this: the reading abstains.
 MIN_SEGMENTS = 8
-KAPPA_FRAME = 22.8  # κ of one frame
-KAPPA_POWER = 0.616  # κ's growth with the frames pooled
+#: The model-based information's share mixed into the meat: with few scene edges the meat alone is noisy.
+MEAT_MIX = 0.25
+#: φ's floor, in sds of the prior's mean variance: below what real sequences under their true files choose with a
+#: baseline (the real-sets study); the likelihood chooses φ above it.
+SCENE_FLOOR = 0.1
+PHI_MAX = 3.0  # the largest scene term considered, prior sds
+PHI_STEPS = 9  # values of φ on a log grid from the floor to PHI_MAX (a log-uniform prior)
+SHAPES = (0.0, 0.5, 1.0)  # values of γ (a uniform prior)
 
 
-def kappa(estimate: Estimate, frames: int) -> float:
-    """Likelihood tempering for a solve over `frames` frames (unitless, ≥ 1)."""
-    return KAPPA_FRAME * max(frames, 1) ** KAPPA_POWER
+@dataclass(frozen=True)
+class Likelihood:
+    """log p(reading | c_i, φ, γ) (m, n) up to a constant, for the library's draws c_i and the grid's m = (φ, γ)
+    pairs (phis, shapes)."""
+
+    phis: np.ndarray
+    shapes: np.ndarray
+    log: np.ndarray
+
+
+def robust_information(est: Estimate) -> tuple[np.ndarray, np.ndarray]:
+    """(J, b): the sandwich information H M⁻¹ H and H M⁻¹ g of the solve, M its meat clustered by scene edge
+    (inflated by G/(G−1) for G edges) mixed with MEAT_MIX·H."""
+    h, g = est.h, est.g
+    tracks = max(est.tracks, 2)
+    meat = (est.meat if est.meat is not None else h) * tracks / (tracks - 1) + MEAT_MIX * h
+    meat = meat + 1e-9 * max(float(np.trace(meat)), 1e-300) * np.eye(len(g))
+    hm = np.linalg.solve(meat, h).T  # H M⁻¹ (both symmetric)
+    return hm @ h, hm @ g
+
+
+def scene_terms(prior_var: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid's (φ, γ) pairs and their scene variances D (m, K), coefficient units (px²)."""
+    phis = np.geomspace(floor, max(PHI_MAX, floor), PHI_STEPS)
+    phi, shape = (a.ravel() for a in np.meshgrid(phis, SHAPES, indexing="ij"))
+    mean = prior_var.mean()
+    return phi, shape, phi[:, None] ** 2 * mean ** (1 - shape[:, None]) * prior_var[None] ** shape[:, None]
+
+
+def likelihood(est: Estimate, coefs: np.ndarray, prior_var: np.ndarray, floor: float, slope: float = 1.0
+               ) -> Likelihood:
+    """The reading's likelihood of each library draw under each scene term of the grid; slope: the reading's
+    response to the field (a baseline's; 1 without)."""
+    j, b = robust_information(est)
+    j, b = slope ** 2 * j, slope * b
+    phi, shape, scene = scene_terms(prior_var, floor)
+    log = []
+    for d in scene:
+        d_inv = np.diag(1.0 / d)
+        k = np.linalg.solve(d_inv + j, np.column_stack([j, b]))  # (D⁻¹ + J)⁻¹ [J, b]
+        s_inv, s_b = j - j @ k[:, :-1], b - j @ k[:, -1]  # (J⁻¹ + D)⁻¹ and its product with the reading
+        log_det = np.linalg.slogdet(d_inv + j)[1] + np.log(d).sum()  # log|D| + log|D⁻¹ + J|
+        quad = np.einsum("ij,jk,ik->i", coefs, s_inv, coefs) - 2 * coefs @ s_b - b @ k[:, -1]
+        log.append(-0.5 * (quad + log_det))
+    return Likelihood(phi, shape, np.array(log))

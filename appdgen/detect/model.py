@@ -31,18 +31,20 @@ from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.bend import output_rest, warp_field
 from appdgen.geometry.crop import Crop, valid_region
+from appdgen.sampling.ranges import default_ranges
 from appdgen.sampling.reach import UnreachableError
 from appdgen.sampling.sampler import Sampler
 from appdgen.util.atomic import write_file
+from appdgen.version import __version__
 
 #: Bump when the model's content or meaning changes: older cache files are then ignored.
-MODEL_VERSION = 3  # 3: the library's size is fixed by the belief (lens model, raw size), never by the clock
+MODEL_VERSION = 4
 LIBRARY_SEED = 4242  # library draw i is Sampler(belief).draw(LIBRARY_SEED, i)
 LIBRARY_DRAWS = 1000  # draws of a radtan camera of KITTI's size or smaller: ~12 s on one idle core
-#: Draws per lens model at KITTI's raw size or smaller: each lens's crop search and label cost differ (measured
-#: 2026-12-03 on one core at load ~8: EUCM ~53 ms a draw, KB4 ~101 ms, radtan ~12 ms at 1392x512), so that a model
-#: is ready in ~20 s on one core. Larger cameras get proportionally fewer (a 2880x1860 rational camera ~155 ms a
-#: draw), never fewer than LEAST_DRAWS. The size depends on the belief only: the same belief always reads the same.
+#: Draws per lens model at KITTI's raw size or smaller: each lens's crop search and label cost differ, so that a
+#: model is ready in about 20 s on one core (docs/studies/bend-field-detector.md). Larger cameras get
+#: proportionally fewer, never fewer than LEAST_DRAWS. The size depends on the belief only: the same belief always
+#: reads the same.
 LENS_DRAWS = {"radtan": LIBRARY_DRAWS, "rational": LIBRARY_DRAWS, "kb4": 200, "ds": 300, "eucm": 300}
 REFERENCE_PIXELS = 1392 * 512
 LEAST_DRAWS = 100
@@ -80,6 +82,11 @@ class FieldModel:
         """(gy, gx, 2) field mean + Σ c_k B_k on the grid, output px."""
         return self.mean + np.tensordot(c, self.basis, axes=1)
 
+    @property
+    def targets(self) -> np.ndarray:
+        """(n, 2 + P) the library's labels: APPD, bend (% of the raw diagonal) and offsets (parameter units)."""
+        return np.column_stack([self.appd, self.bend, self.offsets])
+
 
 def field_lookup(grid_u: np.ndarray, grid_v: np.ndarray, fields: np.ndarray, u: np.ndarray, v: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -114,6 +121,9 @@ def belief_crop(belief: Calibration, max_fov: float | None) -> Crop:
 def default_draws(belief: Calibration) -> int:
     """The library size of a belief: LENS_DRAWS of its lens model, fewer for a raw size above KITTI's."""
     w, h = belief.size
+    if belief.model not in LENS_DRAWS:
+        raise AppdgenError(f"appdgen detect has no field model for the {belief.model!r} lens model "
+                           f"(it reads {', '.join(sorted(LENS_DRAWS))})")
     most = LENS_DRAWS[belief.model]
     return max(LEAST_DRAWS, min(most, round(most * REFERENCE_PIXELS / (w * h))))
 
@@ -160,8 +170,8 @@ def build_model(belief: Calibration, max_fov: float | None = None, draws: int | 
     basis = principal_axes(flat - mean, components)
     shape = uu.shape + (2,)
     return FieldModel(grid_u, grid_v, mean.reshape(shape), basis.reshape((components,) + shape),
-                      (flat - mean) @ basis.T, np.array(appd), np.array(bend), np.array(offsets),
-                      belief.param_names, time.perf_counter() - start)
+                      (flat - mean) @ basis.T, np.array(appd), np.array(bend), np.array(offsets), belief.param_names,
+                      time.perf_counter() - start)
 
 
 def principal_axes(centred: np.ndarray, components: int) -> np.ndarray:
@@ -173,11 +183,14 @@ def principal_axes(centred: np.ndarray, components: int) -> np.ndarray:
 
 
 def model_key(belief: Calibration, max_fov: float | None, draws: int | None = None) -> str:
-    """Cache key of a belief's model: its parameters, size, lens model, max_fov, library size and the model
-    version."""
-    fields = {"calib": belief.to_dict(), "max_fov": max_fov, "version": MODEL_VERSION,
+    """Cache key of a belief's model: everything that decides it (the belief, max_fov, the sampler's ranges and
+    APPD range, the library's seed and size, the basis, grid and label settings, the model and package versions)."""
+    sampler = Sampler(belief, max_fov=max_fov)
+    ranges = {name: [r.low, r.high, r.relative] for name, r in default_ranges(belief).items()}
+    fields = {"calib": belief.to_dict(), "max_fov": max_fov, "version": MODEL_VERSION, "package": __version__,
               "draws": default_draws(belief) if draws is None else draws, "components": COMPONENTS,
-              "spacing": GRID_SPACING}
+              "spacing": GRID_SPACING, "seed": LIBRARY_SEED, "label_columns": LABEL_COLUMNS, "ranges": ranges,
+              "appd_max": sampler.appd_max}
     text = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 

@@ -1,7 +1,8 @@
 """Scene edges across the frames of a sequence: a segment of one frame continues the track of the segment of the
-previous frame that lies on about the same line (direction, polarity, offset) and overlaps it. The solve gives each
-track one random curvature (a curved scene edge keeps its curvature as it moves; the field's bend does not), so
-near-identical frames of a hovering camera no longer count one curved edge many times."""
+previous frame that lies on about the same line (direction, polarity, offset) and overlaps it. The error model counts
+a track once, however many frames see it (near-identical frames of a hovering camera do not count one curved edge
+many times), and how far tracks travel says whether the frames move at all: a lens's field is fixed in the image, a
+scene edge's own curvature moves with it, so only frames that move can tell the two apart."""
 from __future__ import annotations
 
 import numpy as np
@@ -48,3 +49,19 @@ def track_ids(frames: list[EdgePoints]) -> list[np.ndarray]:
         ids.append(cur)
         last = (pts, cur)
     return ids
+
+
+def travel(frames: list[EdgePoints], ids: list[np.ndarray]) -> float:
+    """Median over the sequence's scene edges of how far each edge moves across the image, normal to itself, from
+    the first frame it is seen in to the last (px); an edge seen in one frame of several counts as far-moved (it
+    left the view or the frames jumped); a single frame gives 0."""
+    if len(frames) < 2 or not any(p.segments for p in frames):
+        return 0.0
+    track = np.concatenate(ids)
+    centre = np.vstack([p.centre for p in frames])
+    normal = np.vstack([p.normal for p in frames])
+    _, first, seen = np.unique(track, return_index=True, return_counts=True)
+    _, last_rev = np.unique(track[::-1], return_index=True)
+    last = len(track) - 1 - last_rev
+    moved = np.abs(np.einsum("ij,ij->i", centre[last] - centre[first], normal[first]))
+    return float(np.median(np.where(seen == 1, 2 * MAX_OFFSET * len(frames), moved)))

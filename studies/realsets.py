@@ -1,0 +1,142 @@
+"""appdgen detect on the real frames in ../shared/data/real: the desk and EuRoC camera 1, each under its true file
+and under beliefs drawn around it (Sampler(truth).draw(SEED, i): what `appdgen build` makes), read per window with
+and without a baseline from the first frames, scored against the truth.
+
+    python -m studies.realsets [--sets desk,euroc] [--beliefs 16] [--out runs/realsets]
+
+Per set and baseline: MAE of the windows' APPD readings / the mean predictor's (the mean label of the prior's
+draws), the truth inside 2 sd (coverage, over every belief's windows), true-file windows flagged, beliefs above
+0.5 % flagged (windows), the median sd, and frames/s. Evidence is cached per belief under OUT/cache (delete it after
+a change to appdgen/detect/edges.py). Uses the product's public API only: Detector.evidence, save_baseline, read.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+import appdgen
+from appdgen.detect import DEFAULT_THRESHOLD_PCT, Detector
+from appdgen.sampling.sampler import Sampler
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+SEED = 77  # the beliefs' draws
+STATS = 300  # prior draws whose mean label is the mean predictor
+
+
+@dataclass(frozen=True)
+class RealSet:
+    """A real sequence: its calibration, its frames (sorted), the baseline's frames and the windows after them."""
+
+    calib: Path
+    frames: Path
+    pattern: str
+    baseline: tuple[int, int]  # [first, last) frame indices of the baseline
+    test: tuple[int, int]  # [first, last) frame indices read in windows
+    window: int
+
+
+SETS = {"desk": RealSet(SHARED / "vamr_desk" / "camera_opencv.yaml", SHARED / "vamr_desk" / "frames", "*.jpg",
+                        (0, 100), (100, 300), 50),
+        "euroc": RealSet(SHARED / "euroc_micro_cam1" / "sensor.yaml", SHARED / "euroc_micro_cam1" / "data", "*.png",
+                         (0, 35), (35, 95), 10)}
+
+
+def beliefs(truth, count: int) -> list[tuple[object, float]]:
+    """The true file (APPD 0) and `count` non-reference sampler draws around it with their APPD (%)."""
+    sampler = Sampler(truth)
+    out, i = [(truth, 0.0)], 0
+    while len(out) < count + 1:
+        d = sampler.draw(SEED, i)
+        i += 1
+        if not d.is_reference:
+            out.append((d.calib, appdgen.appd(truth, d.calib)[1]))
+    return out
+
+
+def mean_label(truth) -> float:
+    """The mean predictor: the mean APPD (%) of STATS prior draws."""
+    sampler = Sampler(truth)
+    return float(np.mean([appdgen.appd(truth, sampler.draw(SEED + 1, i).calib)[1] for i in range(STATS)]))
+
+
+def cached(path: Path, make):
+    """make()'s value, pickled at path."""
+    if path.exists():
+        return pickle.loads(path.read_bytes())
+    value = make()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(pickle.dumps(value))
+    return value
+
+
+def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
+    """Every belief's windows read with and without the baseline, and the scores."""
+    truth = appdgen.load(str(s.calib))
+    files = sorted(s.frames.glob(s.pattern))
+    raws = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files]
+    ref = Detector(truth)
+    base_ev = cached(out / "cache" / f"{name}-base.pkl",
+                     lambda: [ref.evidence(r) for r in raws[s.baseline[0]:s.baseline[1]]])
+    start = time.perf_counter()
+    baseline = ref.save_baseline(base_ev, f"{name} frames {s.baseline[0]}-{s.baseline[1] - 1}")
+    save_seconds = time.perf_counter() - start
+    mean = cached(out / "cache" / f"{name}-mean.pkl", lambda: mean_label(truth))
+    rows = []
+    for k, (belief, appd) in enumerate(beliefs(truth, count)):
+        det = Detector(belief)
+        ev = cached(out / "cache" / f"{name}-{k}.pkl",
+                    lambda det=det: [det.evidence(r) for r in raws[s.test[0]:s.test[1]]])
+        for start in range(0, len(ev) - s.window + 1, s.window):
+            for bl in (None, baseline):
+                r = det.read(ev[start:start + s.window], bl)
+                rows.append({"belief": k, "truth": appd, "baseline": bl is not None, "first": s.test[0] + start,
+                             "appd": r.appd_pct, "sd": r.appd_sd_pct, "verdict": r.verdict, "reason": r.reason})
+        log(f"{name} belief {k} (APPD {appd:.2f} %): " + " ".join(
+            f"{x['appd']:.2f}±{x['sd']:.2f}{'*' if x['verdict'] == 'miscalibrated' else ''}"
+            if x["appd"] is not None else "abstain" for x in rows if x["belief"] == k))
+    return {"set": name, "mean": mean, "rows": rows, "save_baseline_seconds": save_seconds}
+
+
+def scores(result: dict, with_baseline: bool) -> dict:
+    """MAE / the mean predictor, coverage, flags under the truth and above the threshold, median sd."""
+    rows = [r for r in result["rows"] if r["baseline"] == with_baseline and r["appd"] is not None]
+    truth = np.array([r["truth"] for r in rows])
+    read = np.array([r["appd"] for r in rows])
+    sd = np.array([r["sd"] for r in rows])
+    flag = np.array([r["verdict"] == "miscalibrated" for r in rows])
+    true_file = truth == 0
+    above = truth > DEFAULT_THRESHOLD_PCT
+    return {"set": result["set"], "baseline": with_baseline, "windows": len(rows),
+            "mae_vs_mean": float(np.abs(read - truth).mean() / np.abs(result["mean"] - truth).mean()),
+            "coverage": float((np.abs(read - truth) <= 2 * sd).mean()),
+            "true_flagged": f"{int(flag[true_file].sum())}/{int(true_file.sum())}",
+            "above_flagged": f"{int(flag[above].sum())}/{int(above.sum())}",
+            "median_sd": float(np.median(sd)), "true_reads": [round(float(x), 2) for x in read[true_file]]}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sets", default="desk,euroc")
+    ap.add_argument("--beliefs", type=int, default=16)
+    ap.add_argument("--out", default="runs/realsets")
+    a = ap.parse_args(argv)
+    out = Path(a.out)
+    found = []
+    for name in a.sets.split(","):
+        result = read_set(name, SETS[name], a.beliefs, out, lambda line: print(line, file=sys.stderr, flush=True))
+        found.append(result)
+        for bl in (False, True):
+            print(json.dumps(scores(result, bl)), flush=True)
+    (out / "readings.json").write_text(json.dumps(found) + "\n")
+
+
+if __name__ == "__main__":
+    main()

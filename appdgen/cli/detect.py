@@ -23,8 +23,10 @@ from appdgen.cli.base import (
     max_fov_option,
     modified,
     perturb_option,
+    plot_option,
     recording_options,
     set_option,
+    start_plot,
 )
 from appdgen.detect import DEFAULT_SEQUENCE, DEFAULT_THRESHOLD_PCT
 from appdgen.errors import AppdgenError
@@ -71,14 +73,14 @@ def writable_target(option: str, path: str) -> Path:
 
 
 def output_targets(json_path: str | None, save_path: str | None, baseline_path: str | None,
-                   changed: bool) -> dict[str, Path]:
+                   changed: bool, plot_path: str | None = None) -> dict[str, Path]:
     """The output files by option, refused before any work when the options contradict or a file is unwritable."""
     if save_path and baseline_path:
         raise AppdgenError("give --baseline or --save-baseline, not both")
     if save_path and changed:
         raise AppdgenError("--save-baseline records the calibration the camera was calibrated with: no --set/--perturb")
     return {option: writable_target(option, path) for option, path in
-            (("--json", json_path), ("--save-baseline", save_path)) if path}
+            (("--json", json_path), ("--save-baseline", save_path), ("--plot", plot_path)) if path}
 
 
 def load_baseline(path: str | None) -> Any:
@@ -218,6 +220,22 @@ def closing_line(info: dict, json_path: str | None) -> str:
             f"(model {info['model_seconds']:.1f} s{rate}){where}")
 
 
+def draw_plot(target: Path, detector: Any, images: Sequence, report: Report, baseline: Any, threshold: float,
+              heading: str) -> None:
+    """The --plot figure: the windows' readings, and the first frame's edge points by weight with the solved field."""
+    from appdgen.analysis.plots import plot_detect
+    from appdgen.sources.inputs import iter_images
+
+    raw = next(iter(iter_images(images[:1], channels=1)))
+    evidence = detector.evidence(raw)
+    points = evidence.points
+    estimate = detector.estimate([evidence], baseline)
+    weight = estimate.seg_weight[points.seg] if estimate.seg_weight is not None else points.u * 0
+    model = detector.model
+    plot_detect(target, report.sequences, threshold, detector.rectify(raw), (points.u, points.v, weight),
+                (model.grid_u, model.grid_v, model.field_of(estimate.c)), heading)
+
+
 @main.command()
 @calib_option
 @camera_option
@@ -242,9 +260,10 @@ def closing_line(info: dict, json_path: str | None) -> str:
               help="Skip frames of the wrong size, truncated or unreadable (listed in the JSON summary); else the "
                    "first is an error.")
 @click.option("--quiet", is_flag=True, help="No progress line and no per-frame lines: only the sequences.")
+@plot_option
 @fail_cleanly
 def detect(calib_path, camera, images_spec, sequence, threshold_pct, baseline_path, save_path, json_path, sets,
-           perturbs, max_fov, topic, every, min_interval, start, end, skip_bad, quiet):
+           perturbs, max_fov, topic, every, min_interval, start, end, skip_bad, quiet, plot_path):
     """Say how far the believed calibration (--calib) is from the camera that took the frames, from straight edges:
     APPD and its non-affine part (bend) per frame and per sequence, with their uncertainty and a verdict."""
     from appdgen.detect import Detector
@@ -252,7 +271,8 @@ def detect(calib_path, camera, images_spec, sequence, threshold_pct, baseline_pa
     from appdgen.sources.recordings import FrameChoice
     from appdgen.util.progress import Progress
 
-    targets = output_targets(json_path, save_path, baseline_path, sets or perturbs)
+    start_plot(plot_path)
+    targets = output_targets(json_path, save_path, baseline_path, sets or perturbs, plot_path)
     baseline = load_baseline(baseline_path)
     inputs = resolve_inputs(images_spec, calib_path, camera, "none", topic,
                             FrameChoice(every, min_interval, start, end), skip_bad, check_grey=False)
@@ -277,5 +297,7 @@ def detect(calib_path, camera, images_spec, sequence, threshold_pct, baseline_pa
     click.echo(title(info))
     click.echo(text_report(report, threshold_pct, quiet, appd_per_unit(belief, max_fov)))
     click.echo(closing_line(info, json_path))
+    if plot_path:
+        draw_plot(targets["--plot"], detector, inputs.images, report, baseline, threshold_pct, title(info))
     if save_path:
         click.echo(f"baseline of {len(kept)} frames under {calib_path} -> {save_path}")

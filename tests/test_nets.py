@@ -13,7 +13,7 @@ from train.errors import TrainError  # noqa: E402
 from train.loop import adam, check_shapes, train_step  # noqa: E402
 from train.model import AppdNet, ModelConfig  # noqa: E402
 from train.nets import MODELS, PATCH, PatchNet, PlumbLineNet, build  # noqa: E402
-from appdgen.detect.plumbline import PlumbLine, feature_matrix  # noqa: E402
+from train.plumbline import PlumbLine, feature_matrix  # noqa: E402
 from synthetic_shards import write_shards  # noqa: E402
 
 
@@ -106,7 +106,7 @@ def test_fit_model_plumbline_solves_the_floor_and_evaluate_and_export_use_it(tmp
     assert ckpt["optimizer"] is None
     model = build_model(ckpt)
     assert isinstance(model, PlumbLineNet) and list(model.parameters()) == []
-    # the module predicts what appdgen.detect.plumbline's detector predicts from the same 8-bit images
+    # the module predicts what train.plumbline's detector predicts from the same 8-bit images
     images = torch.randint(0, 256, (3, 3, 128, 128), dtype=torch.uint8)
     direct = model.floor().predict_features(feature_matrix(i.permute(1, 2, 0).numpy().copy() for i in images))
     assert torch.allclose(model(images.float() / 255), torch.from_numpy(direct).float())

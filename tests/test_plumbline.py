@@ -1,4 +1,4 @@
-"""The classical floor (appdgen.detect.plumbline): plumb-line features of rectified images and their ridge fit."""
+"""The classical floor (train.plumbline): plumb-line features of rectified images and their ridge fit."""
 from __future__ import annotations
 
 import json
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from appdgen.calib.defaults import default_calibration
-from appdgen.detect.plumbline import ALPHAS, FEATURE_NAMES, FEATURES, PlumbLine, feature_matrix, line_features
+from train.plumbline import ALPHAS, FEATURE_NAMES, FEATURES, PlumbLine, feature_matrix, line_features
 from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.bend import split_warp
@@ -183,7 +183,7 @@ def test_misuse_is_a_clear_error(tmp_path) -> None:
 
 
 def test_the_module_imports_without_torch() -> None:
-    code = "import sys; sys.modules['torch'] = None; import appdgen.detect.plumbline as p; print(p.FEATURES)"
+    code = "import sys; sys.modules['torch'] = None; import train.plumbline as p; print(p.FEATURES)"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr
     assert int(done.stdout) == FEATURES

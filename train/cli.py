@@ -227,7 +227,7 @@ def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str |
 @click.option("--onnx", "onnx_path", help="ONNX file to write (needs onnx + onnxscript).")
 @click.option("--pt2", "pt2_path", help="torch.export program to write (.pt2; load with torch.export.load). "
                                         "TorchScript is not offered: torch 2.13 deprecates torch.jit.")
-@click.option("--json", "json_path", help="--model plumbline: the floor's JSON, which appdgen.detect.plumbline reads "
+@click.option("--json", "json_path", help="--model plumbline: the floor's JSON, which train.plumbline reads "
                                           "without torch.")
 def export(ckpt: str, onnx_path: str | None, pt2_path: str | None, json_path: str | None) -> None:
     """Export to ONNX and/or a torch.export .pt2 (the plumb-line floor: --json) and print the parity vs eager

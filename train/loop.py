@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from appdgen.dataset.layout import BUILD_JSON, INDEX, TARGETS
-from appdgen.detect.plumbline import PlumbLine
+from train.plumbline import PlumbLine
 from appdgen.util.progress import Progress
 from train import checkpoint, runtime
 from train.errors import TrainError

@@ -266,7 +266,7 @@ class ArmTrainer(Trainer):
     def __init__(self, arm: Arm, s: Stream, o: DetectorOptions, device, run: Path) -> None:
         from train import checkpoint
         from train.data import PixelStats
-        from train.fit import FitOptions
+        from train.options import FitOptions
         from train.model import ModelConfig
         from train.online.trainer import OnlinePlan
 
@@ -312,16 +312,10 @@ def read_off(trainer, images: np.ndarray, batch: int = 32) -> dict[str, np.ndarr
     """An arm's raw read-offs per target: the scalar output, or the field's mean moved and rest lengths."""
     import torch
 
-    from train import runtime
-    from train.loop import to_input
+    from train.inference import predict
 
-    net = trainer.model.eval()
-    out = []
-    with torch.no_grad():
-        for i in range(0, len(images), batch):
-            x = to_input({"image": torch.from_numpy(images[i:i + batch])}, trainer.device)
-            with runtime.autocast(trainer.device, trainer.dtype):
-                out.append(net(x).float().cpu().numpy().reshape(len(x), -1))
+    chunks = ({"image": torch.from_numpy(images[i:i + batch])} for i in range(0, len(images), batch))
+    out = [p.cpu().numpy().reshape(len(p), -1) for _, p in predict(trainer.model, chunks, trainer.device, trainer.dtype)]
     y = np.concatenate(out) * trainer.std + trainer.mean
     if trainer.arm.target != "field":
         return {trainer.arm.target: y[:, 0]}

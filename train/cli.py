@@ -112,7 +112,8 @@ def online_from(kw: dict) -> None:
 @online_options
 def fit(**kw) -> None:
     """Train on one split of the shards (or --online on fresh pairs); prints a JSON summary."""
-    from train.fit import FitOptions, fit as run_fit
+    from train.fit import fit as run_fit
+    from train.options import FitOptions
 
     online_from(kw)
     summary = run_fit(FitOptions(**kw))

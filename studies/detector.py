@@ -64,7 +64,8 @@ RECAL_SEED = 7005
 TUNE_SEED = 7006
 #: Synth seed offsets: the training streets and the unseen ones.
 TRAIN_SYNTH, TEST_SYNTH = 101, 202
-#: Rendering interpolation: bicubic, 3.4× cheaper than Lanczos at 1392×512 (docs/studies/online-vs-offline.md), as paper-scale's.
+#: Rendering interpolation: bicubic, 3.4× cheaper than Lanczos at 1392×512 (docs/studies/online-vs-offline.md), as
+#: paper-scale's.
 INTERP = "cubic"
 
 
@@ -266,9 +267,9 @@ class ArmTrainer(Trainer):
     def __init__(self, arm: Arm, s: Stream, o: DetectorOptions, device, run: Path) -> None:
         from train import checkpoint
         from train.data import PixelStats
-        from train.options import FitOptions
         from train.model import ModelConfig
         from train.online.trainer import OnlinePlan
+        from train.options import FitOptions
 
         first = train_pairs(s, o.seed, 0, o.stats)
         stats = PixelStats()
@@ -315,8 +316,8 @@ def read_off(trainer, images: np.ndarray, batch: int = 32) -> dict[str, np.ndarr
     from train.inference import predict
 
     chunks = ({"image": torch.from_numpy(images[i:i + batch])} for i in range(0, len(images), batch))
-    out = [p.cpu().numpy().reshape(len(p), -1) for _, p in predict(trainer.model, chunks, trainer.device, trainer.dtype)]
-    y = np.concatenate(out) * trainer.std + trainer.mean
+    out = predict(trainer.model, chunks, trainer.device, trainer.dtype)
+    y = np.concatenate([p.cpu().numpy().reshape(len(p), -1) for _, p in out]) * trainer.std + trainer.mean
     if trainer.arm.target != "field":
         return {trainer.arm.target: y[:, 0]}
     points = y.reshape(len(y), -1, 4)

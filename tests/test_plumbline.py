@@ -9,9 +9,9 @@ import sys
 import cv2
 import numpy as np
 import pytest
+from helpers import load_script
 
 from appdgen.calib.defaults import default_calibration
-from train.plumbline import ALPHAS, FEATURE_NAMES, FEATURES, PlumbLine, feature_matrix, line_features
 from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.bend import split_warp
@@ -20,7 +20,7 @@ from appdgen.geometry.distortion import undistort_pixels
 from appdgen.geometry.maps import rectify
 from appdgen.geometry.remap import remap_image
 from appdgen.synth import scale_calibration
-from helpers import load_script
+from train.plumbline import ALPHAS, FEATURE_NAMES, FEATURES, PlumbLine, feature_matrix, line_features
 
 floor_benchmark = load_script("plumbline")
 HALF = scale_calibration(default_calibration(), 0.5)  # KITTI at 696×256: lines bend by a pixel, render is quick
@@ -49,8 +49,8 @@ def radial_warp(image: np.ndarray, k: float) -> np.ndarray:
     v, u = np.mgrid[0:height, 0:width].astype(np.float64)
     x, y = (u - cu) / diagonal, (v - cv) / diagonal
     grow = 1 + k * (x * x + y * y)
-    return cv2.remap(image, (x * grow * diagonal + cu).astype(np.float32), (y * grow * diagonal + cv).astype(np.float32),
-                     cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    map_x, map_y = (x * grow * diagonal + cu).astype(np.float32), (y * grow * diagonal + cv).astype(np.float32)
+    return cv2.remap(image, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
 
 
 def raw_of(rectified: np.ndarray) -> np.ndarray:
@@ -124,7 +124,7 @@ def test_straight_lines_through_the_kitti_lens_straighten_and_bend_more_with_k1(
         assert straight[BEND] < 0.25 * bends[0], (straight[BEND], bends)
         labels = [px_to_pct(split_warp(HALF, crop, HALF.replace(k1=HALF.k1 * (1 + c)), crop).bend_px, HALF)
                   for c in changes]
-        ratios += [b / label for b, label in zip(bends, labels)]
+        ratios += [b / label for b, label in zip(bends, labels, strict=True)]
     assert max(ratios) < 1.5 * min(ratios), ratios
 
 

@@ -145,7 +145,8 @@ def evaluate(ckpt: str, shards: str | None, frames: str | None, length: int, seq
              batch: int, workers: int, device: str, precision: str) -> None:
     """MAE, RMSE, mean-predictor MAE, per-bin MAE and P/R/F1 of a checkpoint on one split (JSON); with --frames,
     on sequences of unseen raw frames, per frame and per sequence."""
-    from train.evaluate import evaluate as run_eval, evaluate_frames
+    from train.evaluate import evaluate as run_eval
+    from train.evaluate import evaluate_frames
     from train.scoring import summary_line
 
     if (shards is None) == (frames is None):
@@ -178,7 +179,8 @@ def evaluate(ckpt: str, shards: str | None, frames: str | None, length: int, seq
 @click.option("--csv", "as_csv", is_flag=True, help="CSV output.")
 @click.option("--json", "as_json", is_flag=True, help="JSON output (printed at the end; text and CSV stream).")
 @recording_options
-@click.option("--skip-bad", is_flag=True, help="Skip undecodable images or frames of a recording, e.g. a corrupt JPEG body (counted at the end).")
+@click.option("--skip-bad", is_flag=True,
+              help="Skip undecodable images or frames of a recording, e.g. a corrupt JPEG body (counted at the end).")
 @DEVICE
 def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str | None, max_fov: float | None,
             threshold: float, window: int, batch: int, resize: bool, as_csv: bool, as_json: bool, topic: str | None,

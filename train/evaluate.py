@@ -16,8 +16,8 @@ from train import checkpoint, runtime
 from train.data import Selection, StreamSpec, make_loader
 from train.errors import TrainError
 from train.inference import predict
-from train.scoring import (SEQUENCE_SEED, THRESHOLD as DETECTION_THRESHOLD, bin_edges, bin_index, metrics,
-                           sequence_metrics, sequence_pairs)
+from train.scoring import SEQUENCE_SEED, bin_edges, bin_index, metrics, sequence_metrics, sequence_pairs
+from train.scoring import THRESHOLD as DETECTION_THRESHOLD
 
 
 def predict_split(model: torch.nn.Module, loader: Iterable[dict], device: torch.device, dtype: torch.dtype | None

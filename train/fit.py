@@ -63,7 +63,7 @@ def plan_data(ss: ShardSet, labels: dict | None, opts: FitOptions) -> DataPlan:
         train, val = Selection(opts.split), Selection(val_split)
     else:
         by, held = holdout_unit(labels, opts.split, opts.val_by, opts.val_fraction)
-        raw = dict(zip(labels["key"], labels["raw_path"])) if labels else None
+        raw = dict(zip(labels["key"], labels["raw_path"], strict=True)) if labels else None
         if raw is None:
             print(f"fit: no {INDEX}; holding out by each sample's json raw_path, else its key", file=sys.stderr)
         train = Selection(opts.split, opts.val_fraction, "train", raw, by, held)
@@ -109,7 +109,7 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
 
 def _train_label_mean(labels: dict, sel: Selection, column: str) -> float:
     """Mean label (`column`, e.g. appd_pct) over a selection's rows of labels.parquet (exact, no image decoding)."""
-    vals = [a for k, s, r, a in zip(labels["key"], labels["split"], labels["raw_path"], labels[column])
+    vals = [a for k, s, r, a in zip(labels["key"], labels["split"], labels["raw_path"], labels[column], strict=True)
             if sel.accepts({"key": k, "split": s, "raw_path": r})]
     return sum(vals) / len(vals)
 

@@ -130,7 +130,8 @@ class Trainer:
     trains and validates (its `val` None when nothing does). A model without parameters (the plumb-line floor) has no
     optimiser: train.closed_form fits it, beside this loop."""
 
-    def __init__(self, opts: FitOptions, plan: Plan, state: dict, device: torch.device, rank: int, world: int, run: Path) -> None:
+    def __init__(self, opts: FitOptions, plan: Plan, state: dict, device: torch.device, rank: int, world: int,
+                 run: Path) -> None:
         self.opts, self.plan, self.state = opts, plan, state
         self.device, self.rank, self.world, self.run = device, rank, world, run
         self.dtype = runtime.autocast_dtype(device, opts.precision)

@@ -3,11 +3,13 @@ patchify stem that reads full-resolution detail at about a third of the paper CN
 resolution, and the plumb-line floor (train.plumbline) as a module, so that fit, evaluate and predict treat
 it as they treat a network.
 
-At 348×128 the bent-line signal a single image carries is under a pixel (benchmarks/visibility.py); the paper feeds
+At 348×128 the bent-line signal a single image carries is under a pixel (studies/visibility.py); the paper feeds
 1392×512 for it, at 16× the cost. A 4×4/stride-4 convolution keeps each 4×4 patch's detail in its channels (48
 inputs → `PATCH_FILTERS[0]` outputs), after which stride-2 convolutions work on a 348×128 grid.
 """
 from __future__ import annotations
+
+from itertools import pairwise
 
 import numpy as np
 import torch
@@ -40,7 +42,7 @@ class PatchNet(Regressor):
         self.cfg = cfg
         self.normalize = Normalize(cfg.mean, cfg.std, (cfg.height, cfg.width) if cfg.normalize == "pixel" else None)
         layers: list[nn.Module] = [nn.Conv2d(cfg.in_channels, PATCH_FILTERS[0], PATCH, stride=PATCH), nn.ReLU(True)]
-        for a, b in zip(PATCH_FILTERS, PATCH_FILTERS[1:]):
+        for a, b in pairwise(PATCH_FILTERS):
             layers += [nn.Conv2d(a, b, 3, stride=2, padding=1), nn.ReLU(True)]
         self.features = nn.Sequential(*layers)
         with torch.no_grad():

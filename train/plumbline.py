@@ -141,7 +141,8 @@ def radial_unit_bend(aspect: float) -> float:
     """Mean length (diagonal units) of the non-affine part of the field (x, y)·ρ² over an image of this aspect,
     in centred coordinates of diagonal units: what k = 1 bends."""
     half_w, half_h = aspect / math.hypot(aspect, 1) / 2, 1 / math.hypot(aspect, 1) / 2
-    x, y = (a.ravel() for a in np.meshgrid(np.linspace(-half_w, half_w, GRID[0]), np.linspace(-half_h, half_h, GRID[1])))
+    columns, rows = np.linspace(-half_w, half_w, GRID[0]), np.linspace(-half_h, half_h, GRID[1])
+    x, y = (a.ravel() for a in np.meshgrid(columns, rows))
     rho2 = x * x + y * y
     rest = affine_rest(x, y, x * rho2, y * rho2)
     return float(np.hypot(rest.rest_u, rest.rest_v).mean())
@@ -240,7 +241,8 @@ class PlumbLine:
     def from_dict(cls, data: dict) -> "PlumbLine":
         """The detector to_dict wrote; refuses another format or feature list."""
         if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise AppdgenError(f"not a plumb-line detector (format {data.get('format') if isinstance(data, dict) else None!r}, expected {FORMAT})")
+            found = data.get("format") if isinstance(data, dict) else None
+            raise AppdgenError(f"not a plumb-line detector (format {found!r}, expected {FORMAT})")
         if list(data.get("features", [])) != list(FEATURE_NAMES):
             raise AppdgenError("plumb-line detector: its feature list differs from this version's")
         try:

@@ -140,8 +140,8 @@ def rectifier(calib_path: str, camera: str | None, size: tuple[int, int], rule: 
         from appdgen.geometry.maps import rectify
         from appdgen.geometry.remap import remap_image
     except ImportError as exc:
-        raise TrainError(f"--calib needs appdgen's calibration, maps and remap modules, which are missing here ({exc}); "
-                         "rectify the images with `appdgen` first and predict without --calib") from None
+        raise TrainError(f"--calib needs appdgen's calibration, maps and remap modules, which are missing here "
+                         f"({exc}); rectify the images with `appdgen` first and predict without --calib") from None
     calib = load(calib_path, camera)
     rect = rectify(calib, size, max_fov=rule["max_fov"])
     interp = {"interp": rule["interp"]} if rule.get("interp") else {}  # unrecorded: remap_image's default

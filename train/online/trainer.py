@@ -14,11 +14,11 @@ from train.errors import TrainError
 from train.holdout import frame_sides
 from train.loop import Trainer, resumed, total_steps
 from train.model import check_size
-from train.options import FitOptions
 from train.online.options import SAME_DATA, OnlineOptions, pick_render
 from train.online.pairs import VAL_SEED, PairSpec, pair_loader
 from train.online.recipe import decode_frames, open_recipe
 from train.online.render import DeviceFrames, Feed, image_stats, rendered
+from train.options import FitOptions
 
 
 @dataclass(frozen=True)

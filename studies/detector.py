@@ -4,7 +4,7 @@ axes of novelty that tell memorisation from generalisation.
 Arms (ARMS): the paper's CNN at low resolution (348×128 for KITTI), the stride-4 patch network (train.nets) at
 full resolution, the patch network on a dense target (the warp's displacement and its non-affine rest on a coarse
 grid, geometry.bend.warp_field; APPD and bend read off it), and the classical plumb-line floor
-(train.plumbline, when present); the networks on `appd` and on `bend` (geometry.bend.split_warp, % of the raw diagonal).
+(train.plumbline); the networks on `appd` and on `bend` (geometry.bend.split_warp, % of the raw diagonal).
 The bend-field estimator (appdgen.detect's Detector, no training) is scored on the same axes, draws and metrics by
 studies/bendfield.py (python -m studies.bendfield), which reads the raw frames under each draw as the belief.
 
@@ -344,13 +344,8 @@ def logged_losses(run: Path) -> tuple[float, float]:
 
 def floor_arms(arms: list[Arm], s: Stream, o: DetectorOptions, tests: dict[str, dict]) -> dict:
     """The plumb-line floor's predictions per axis and target (ridge fit on the first training pairs) and, with
-    --finetune, the same fit with pairs of the first real frames added (arm plumbline+realN); {} when
-    train.plumbline is missing."""
-    try:
-        from train.plumbline import PlumbLine, feature_matrix
-    except ImportError:
-        print("detector: train.plumbline not found; the floor arms are skipped", file=sys.stderr)
-        return {}
+    --finetune, the same fit with pairs of the first real frames added (arm plumbline+realN)."""
+    from train.plumbline import PlumbLine, feature_matrix
 
     def features(pairs: dict) -> np.ndarray:
         """Line features of every pair's image (computed once, shared by both targets and every fit)."""

@@ -101,18 +101,17 @@ class Bulges:
 
 
 def bulges(points: EdgePoints, centre: np.ndarray) -> Bulges:
-    """Each segment's quadratic through its edge points (offset e against arc position s, detect.edges), read as a
-    bulge away from `centre` (pixels) over the half-span of its points."""
-    nseg = points.segments
-    coef = segment_coefficients(points.s, points.e, points.seg, np.ones_like(points.s), nseg, 2)
-    powers = np.stack([np.ones_like(points.s), points.s, points.s ** 2], axis=1)
-    residual = points.e - np.einsum("nd,nd->n", powers, coef[points.seg])
+    """Each segment's quadratic through its edge points (offset e against arc position s in half-spans,
+    detect.edges), read as a bulge away from `centre` (pixels) over the half-span of its points."""
+    nseg, half = points.segments, points.length / 2
+    t = points.s / np.maximum(half, 1e-9)[points.seg]  # −1…1 over a segment's points: a well-scaled fit
+    coef = segment_coefficients(t, points.e, points.seg, np.ones_like(t), nseg, 2)
+    residual = points.e - np.einsum("nd,nd->n", np.stack([np.ones_like(t), t, t * t], axis=1), coef[points.seg])
     count = np.bincount(points.seg, minlength=nseg)
     rms = np.sqrt(np.bincount(points.seg, residual ** 2, nseg) / np.maximum(count - 3, 1))
     across = np.einsum("sk,sk->s", points.normal, points.centre - centre)
     outward = np.where(across < 0, -1.0, 1.0)
-    half = points.length / 2
-    return Bulges(-outward * coef[:, 2] * half ** 2, rms, np.abs(across), half)
+    return Bulges(-outward * coef[:, 2], rms, np.abs(across), half)
 
 
 def radial_k1(bulge: np.ndarray, rms: np.ndarray, lever: np.ndarray, distance: np.ndarray) -> float:

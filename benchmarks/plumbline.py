@@ -1,4 +1,4 @@
-"""The classical floor (appdgen.detect.plumbline) on fresh pairs: ridge on plumb-line features, scored on frames it
+"""The classical floor (train.plumbline) on fresh pairs: ridge on plumb-line features, scored on frames it
 was not fitted on, for appd_pct and bend_pct, at a raw size scaled by --scale (0.25 → 348×128).
 
 Each frame i is a new synthetic street (synth.render_frame, seed [seed, i]) seen through the reference camera and
@@ -26,7 +26,7 @@ from appdgen.sampling.sampler import Sampler, target_px
 from appdgen.synth import frame_rng, render_frame, scale_calibration
 from appdgen.util.sizes import parse_size
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
-from appdgen.detect.plumbline import PlumbLine, feature_matrix  # noqa: E402
+from train.plumbline import PlumbLine, feature_matrix  # noqa: E402
 
 
 def pairs(scenes: int, scale: float, seed: int, draws: int = 1, size: tuple[int, int] | None = None

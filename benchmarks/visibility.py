@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from appdgen.geometry.appd import appd_px
+from appdgen.geometry.bend import affine_rest
 from appdgen.calib.calibration import Calibration
 from appdgen.geometry.distortion import undistort_pixels
 from appdgen.geometry.maps import Rectification, rectify
@@ -36,11 +37,9 @@ def warp_px(ref: Rectification, perturbed: Rectification) -> tuple[np.ndarray, n
 
 
 def non_affine_px(u: np.ndarray, v: np.ndarray, du: np.ndarray, dv: np.ndarray) -> float:
-    """Mean length (pixels) of the displacement left after the least-squares affine fit."""
-    a = np.column_stack([np.ones_like(u), u, v])
-    ru = du - a @ np.linalg.lstsq(a, du, rcond=None)[0]
-    rv = dv - a @ np.linalg.lstsq(a, dv, rcond=None)[0]
-    return float(np.hypot(ru, rv).mean())
+    """Mean length (pixels) of the displacement left after the least-squares affine fit (geometry.bend.affine_rest)."""
+    rest = affine_rest(u, v, du, dv)
+    return float(np.hypot(rest.rest_u, rest.rest_v).mean())
 
 
 def split(ref: Rectification, calib: Calibration) -> tuple[float, float]:

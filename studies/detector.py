@@ -4,7 +4,7 @@ axes of novelty that tell memorisation from generalisation.
 Arms (ARMS): the paper's CNN at low resolution (348×128 for KITTI), the stride-4 patch network (train.nets) at
 full resolution, the patch network on a dense target (the warp's displacement and its non-affine rest on a coarse
 grid, geometry.bend.warp_field; APPD and bend read off it), and the classical plumb-line floor
-(appdgen.detect.plumbline, when present); the networks on `appd` and on `bend` (geometry.bend.split_warp, % of the raw diagonal).
+(train.plumbline); the networks on `appd` and on `bend` (geometry.bend.split_warp, % of the raw diagonal).
 The bend-field estimator (appdgen.detect's Detector, no training) is scored on the same axes, draws and metrics by
 studies/bendfield.py (python -m studies.bendfield), which reads the raw frames under each draw as the belief.
 
@@ -64,7 +64,8 @@ RECAL_SEED = 7005
 TUNE_SEED = 7006
 #: Synth seed offsets: the training streets and the unseen ones.
 TRAIN_SYNTH, TEST_SYNTH = 101, 202
-#: Rendering interpolation: bicubic, 3.4× cheaper than Lanczos at 1392×512 (docs/studies/online-vs-offline.md), as paper-scale's.
+#: Rendering interpolation: bicubic, 3.4× cheaper than Lanczos at 1392×512 (docs/studies/online-vs-offline.md), as
+#: paper-scale's.
 INTERP = "cubic"
 
 
@@ -266,9 +267,9 @@ class ArmTrainer(Trainer):
     def __init__(self, arm: Arm, s: Stream, o: DetectorOptions, device, run: Path) -> None:
         from train import checkpoint
         from train.data import PixelStats
-        from train.fit import FitOptions
         from train.model import ModelConfig
         from train.online.trainer import OnlinePlan
+        from train.options import FitOptions
 
         first = train_pairs(s, o.seed, 0, o.stats)
         stats = PixelStats()
@@ -312,17 +313,11 @@ def read_off(trainer, images: np.ndarray, batch: int = 32) -> dict[str, np.ndarr
     """An arm's raw read-offs per target: the scalar output, or the field's mean moved and rest lengths."""
     import torch
 
-    from train import runtime
-    from train.loop import to_input
+    from train.inference import predict
 
-    net = trainer.model.eval()
-    out = []
-    with torch.no_grad():
-        for i in range(0, len(images), batch):
-            x = to_input({"image": torch.from_numpy(images[i:i + batch])}, trainer.device)
-            with runtime.autocast(trainer.device, trainer.dtype):
-                out.append(net(x).float().cpu().numpy().reshape(len(x), -1))
-    y = np.concatenate(out) * trainer.std + trainer.mean
+    chunks = ({"image": torch.from_numpy(images[i:i + batch])} for i in range(0, len(images), batch))
+    out = predict(trainer.model, chunks, trainer.device, trainer.dtype)
+    y = np.concatenate([p.cpu().numpy().reshape(len(p), -1) for _, p in out]) * trainer.std + trainer.mean
     if trainer.arm.target != "field":
         return {trainer.arm.target: y[:, 0]}
     points = y.reshape(len(y), -1, 4)
@@ -349,13 +344,8 @@ def logged_losses(run: Path) -> tuple[float, float]:
 
 def floor_arms(arms: list[Arm], s: Stream, o: DetectorOptions, tests: dict[str, dict]) -> dict:
     """The plumb-line floor's predictions per axis and target (ridge fit on the first training pairs) and, with
-    --finetune, the same fit with pairs of the first real frames added (arm plumbline+realN); {} when
-    appdgen.detect.plumbline is missing."""
-    try:
-        from appdgen.detect.plumbline import PlumbLine, feature_matrix
-    except ImportError:
-        print("detector: appdgen.detect.plumbline not found; the floor arms are skipped", file=sys.stderr)
-        return {}
+    --finetune, the same fit with pairs of the first real frames added (arm plumbline+realN)."""
+    from train.plumbline import PlumbLine, feature_matrix
 
     def features(pairs: dict) -> np.ndarray:
         """Line features of every pair's image (computed once, shared by both targets and every fit)."""

@@ -7,7 +7,7 @@ import pytest
 
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.defaults import default_calibration
-from appdgen.geometry.bend import grid, split_warp, warp_field
+from appdgen.geometry.bend import affine_rest, grid, split_warp, warp_field
 from appdgen.geometry.crop import Crop, valid_region
 from appdgen.geometry.distortion import distort_to_pixels, undistort_pixels
 from appdgen.geometry.maps import rectify
@@ -60,6 +60,26 @@ def test_a_principal_point_change_is_mostly_affine_and_k1_mostly_not() -> None:
     assert cx.shift_x_px < -0.9 * cx.appd_grid_px  # a larger cx moves the raw position left
     k1 = split(KITTI, KITTI.replace(k1=KITTI.k1 * 1.15))
     assert k1.bend_px > 0.5 * k1.appd_grid_px
+
+
+def test_affine_rest_is_the_least_squares_affine_fits_residual() -> None:
+    # Against a brute-force fit of both components at once (pseudo-inverse of the design), on scattered points of a
+    # field that is affine plus a bend: the rest is orthogonal to 1, u and v, and an affine field leaves none.
+    rng = np.random.default_rng(0)
+    u, v = rng.uniform(0, 1392, 500), rng.uniform(0, 512, 500)
+    du, dv = 3.0 + 0.01 * u - 0.02 * v + 1e-6 * u * v, -1.0 + 0.03 * u + 2e-6 * (u - 700) ** 2
+    fit = affine_rest(u, v, du, dv)
+    design = np.column_stack([np.ones_like(u), u, v])
+    coef = np.linalg.pinv(design) @ np.column_stack([du, dv])
+    np.testing.assert_allclose(np.column_stack([fit.coef_u, fit.coef_v]), coef, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(np.column_stack([fit.rest_u, fit.rest_v]), np.column_stack([du, dv]) - design @ coef,
+                               rtol=0, atol=1e-9)
+    assert np.abs(design.T @ np.column_stack([fit.rest_u, fit.rest_v])).max() < 1e-6
+    assert np.hypot(fit.rest_u, fit.rest_v).mean() > 0.1
+    again = affine_rest(u, v, du, dv, design)  # a cached design gives the same bits
+    assert all(np.array_equal(a, b) for a, b in zip(fit, again, strict=True))
+    flat = affine_rest(u, v, 2.0 + 0.5 * u, 0.25 * v - 1.0)
+    assert max(np.abs(flat.rest_u).max(), np.abs(flat.rest_v).max()) < 1e-9
 
 
 def test_the_field_is_opencvs_map_difference_at_the_grid_points() -> None:

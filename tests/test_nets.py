@@ -7,14 +7,16 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from synthetic_shards import write_shards  # noqa: E402
+
 from train.checkpoint import build_model, load  # noqa: E402
 from train.cli import main  # noqa: E402
 from train.errors import TrainError  # noqa: E402
+from train.inference import predict  # noqa: E402
 from train.loop import adam, check_shapes, train_step  # noqa: E402
 from train.model import AppdNet, ModelConfig  # noqa: E402
 from train.nets import MODELS, PATCH, PatchNet, PlumbLineNet, build  # noqa: E402
-from appdgen.detect.plumbline import PlumbLine, feature_matrix  # noqa: E402
-from synthetic_shards import write_shards  # noqa: E402
+from train.plumbline import PlumbLine, feature_matrix  # noqa: E402
 
 
 class Column(torch.nn.Module):
@@ -106,7 +108,7 @@ def test_fit_model_plumbline_solves_the_floor_and_evaluate_and_export_use_it(tmp
     assert ckpt["optimizer"] is None
     model = build_model(ckpt)
     assert isinstance(model, PlumbLineNet) and list(model.parameters()) == []
-    # the module predicts what appdgen.detect.plumbline's detector predicts from the same 8-bit images
+    # the module predicts what train.plumbline's detector predicts from the same 8-bit images
     images = torch.randint(0, 256, (3, 3, 128, 128), dtype=torch.uint8)
     direct = model.floor().predict_features(feature_matrix(i.permute(1, 2, 0).numpy().copy() for i in images))
     assert torch.allclose(model(images.float() / 255), torch.from_numpy(direct).float())
@@ -117,3 +119,21 @@ def test_fit_model_plumbline_solves_the_floor_and_evaluate_and_export_use_it(tmp
     assert "--json" in capsys.readouterr().err
     with pytest.raises(TrainError, match="not fitted"):
         PlumbLineNet(ModelConfig(128, 128, arch="plumbline"))(torch.rand(1, 3, 128, 128))
+    # the closed-form fit keeps the loop's resume rule: a checkpoint at --steps has nothing left to do
+    shards = tmp_path / "shards"
+    main(["fit", "--shards", str(shards), "--run", str(run), "--steps", "3", "--batch", "8", "--workers", "0",
+          "--val-split", "none", "--model", "plumbline", "--quiet", "--resume"])
+    assert "already at step 3" in capsys.readouterr().err
+
+
+def test_predict_reads_every_batch_in_eval_mode_restores_the_mode_and_stops_at_the_limit():
+    net = build(ModelConfig(128, 128)).train()  # dropout: train-mode outputs would be random
+    images = torch.randint(0, 256, (5, 3, 128, 128), dtype=torch.uint8)
+    chunks = [{"image": images[:2], "key": "a"}, {"image": images[2:4], "key": "b"}, {"image": images[4:], "key": "c"}]
+    got = list(predict(net, chunks, torch.device("cpu")))
+    assert net.training and [b["key"] for b, _ in got] == ["a", "b", "c"]
+    with torch.no_grad():
+        want = net.eval()(images.float() / 255)
+    torch.testing.assert_close(torch.cat([p for _, p in got]), want)  # batches and memory layout: float rounding
+    assert [b["key"] for b, _ in predict(net, chunks, torch.device("cpu"), limit=3)] == ["a", "b"]
+    assert not net.training  # the mode it had when predict began

@@ -245,7 +245,7 @@ def test_online_fit_on_bend_records_it_and_resume_keeps_it(frames, tmp_path, cap
 
 def test_evaluate_frames_scores_sequences_of_unseen_frames_under_one_draw_each(online_run, frames, tmp_path, capsys):
     from train.scoring import SEQUENCE_SEED
-    from train.loop import to_input
+    from train.inference import to_input
 
     calib, images = frames
     main(["evaluate", "--ckpt", str(online_run / "last.pt"), "--frames", str(images), "--length", "2",

@@ -15,17 +15,17 @@ import pytest
 torch = pytest.importorskip("torch")
 
 import cv2  # noqa: E402
+from synthetic_shards import write_shards  # noqa: E402
 
 from appdgen.dataset.shardset import open_shards, read_labels  # noqa: E402
 from appdgen.errors import AppdgenError  # noqa: E402
 from train.checkpoint import check_plain  # noqa: E402
 from train.cli import main  # noqa: E402
 from train.data import Selection, ShardStream, StreamSpec, count_selected, make_loader, shard_mode_ok  # noqa: E402
-from train.holdout import held_out, holdout_group, holdout_unit  # noqa: E402
 from train.errors import TrainError  # noqa: E402
+from train.holdout import held_out, holdout_group, holdout_unit  # noqa: E402
 from train.model import AppdNet, ModelConfig, check_size  # noqa: E402
 from train.predict import RunningVerdict  # noqa: E402
-from synthetic_shards import write_shards  # noqa: E402
 
 STEPS = 30
 
@@ -175,11 +175,11 @@ def test_looping_stream_yields_each_sample_once_per_pass(shards):
 @pytest.mark.parametrize("by", ["image", "recording"])
 def test_holdout_keeps_raw_images_or_recordings_whole(shards, by):
     labels = read_labels(shards)
-    raw = dict(zip(labels["key"], labels["raw_path"]))
+    raw = dict(zip(labels["key"], labels["raw_path"], strict=True))
     held = held_out({holdout_group(r) for r in raw.values()}, 0.3) if by == "recording" else None
     tr, va = (Selection("train", 0.3, side, raw, by, held) for side in ("train", "val"))
     side = {k: (tr.accepts({"key": k, "split": s}), va.accepts({"key": k, "split": s}))
-            for k, s in zip(labels["key"], labels["split"]) if s == "train"}
+            for k, s in zip(labels["key"], labels["split"], strict=True) if s == "train"}
     assert all(a != b for a, b in side.values()), "every training sample is on exactly one side"
     unit = (lambda k: raw[k]) if by == "image" else (lambda k: raw[k].rsplit("/", 1)[0])  # synthetic: raw/recN/x
     by_unit: dict[str, set] = {}
@@ -500,6 +500,7 @@ def bend_run(shards, tmp_path_factory) -> Path:
 
 def test_fit_on_bend_learns_the_bend_column_and_evaluate_scores_it(bend_run, shards, tmp_path, capsys):
     import pyarrow.parquet as pq
+
     from train import checkpoint
 
     state = checkpoint.load(bend_run / "last.pt")

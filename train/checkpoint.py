@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from appdgen.dataset.layout import TARGETS
 from appdgen.util.atomic import atomic_stream
 from train.errors import TrainError
-from appdgen.dataset.layout import TARGETS
 from train.model import NORMALIZE, ModelConfig
 from train.nets import build
 

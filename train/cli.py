@@ -112,7 +112,8 @@ def online_from(kw: dict) -> None:
 @online_options
 def fit(**kw) -> None:
     """Train on one split of the shards (or --online on fresh pairs); prints a JSON summary."""
-    from train.fit import FitOptions, fit as run_fit
+    from train.fit import fit as run_fit
+    from train.options import FitOptions
 
     online_from(kw)
     summary = run_fit(FitOptions(**kw))
@@ -144,7 +145,8 @@ def evaluate(ckpt: str, shards: str | None, frames: str | None, length: int, seq
              batch: int, workers: int, device: str, precision: str) -> None:
     """MAE, RMSE, mean-predictor MAE, per-bin MAE and P/R/F1 of a checkpoint on one split (JSON); with --frames,
     on sequences of unseen raw frames, per frame and per sequence."""
-    from train.evaluate import evaluate as run_eval, evaluate_frames
+    from train.evaluate import evaluate as run_eval
+    from train.evaluate import evaluate_frames
     from train.scoring import summary_line
 
     if (shards is None) == (frames is None):
@@ -177,7 +179,8 @@ def evaluate(ckpt: str, shards: str | None, frames: str | None, length: int, seq
 @click.option("--csv", "as_csv", is_flag=True, help="CSV output.")
 @click.option("--json", "as_json", is_flag=True, help="JSON output (printed at the end; text and CSV stream).")
 @recording_options
-@click.option("--skip-bad", is_flag=True, help="Skip undecodable images or frames of a recording, e.g. a corrupt JPEG body (counted at the end).")
+@click.option("--skip-bad", is_flag=True,
+              help="Skip undecodable images or frames of a recording, e.g. a corrupt JPEG body (counted at the end).")
 @DEVICE
 def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str | None, max_fov: float | None,
             threshold: float, window: int, batch: int, resize: bool, as_csv: bool, as_json: bool, topic: str | None,
@@ -227,7 +230,7 @@ def predict(images: tuple[str, ...], ckpt: str, calib: str | None, camera: str |
 @click.option("--onnx", "onnx_path", help="ONNX file to write (needs onnx + onnxscript).")
 @click.option("--pt2", "pt2_path", help="torch.export program to write (.pt2; load with torch.export.load). "
                                         "TorchScript is not offered: torch 2.13 deprecates torch.jit.")
-@click.option("--json", "json_path", help="--model plumbline: the floor's JSON, which appdgen.detect.plumbline reads "
+@click.option("--json", "json_path", help="--model plumbline: the floor's JSON, which train.plumbline reads "
                                           "without torch.")
 def export(ckpt: str, onnx_path: str | None, pt2_path: str | None, json_path: str | None) -> None:
     """Export to ONNX and/or a torch.export .pt2 (the plumb-line floor: --json) and print the parity vs eager

@@ -54,7 +54,8 @@ def count_selected(labels: Mapping[str, list] | None, sel: Selection) -> int | N
     """Samples a selection yields, from labels.parquet; None when unknown."""
     if labels is None:
         return None
-    rows = zip(labels["key"], labels["split"], labels["raw_path"], labels.get("source") or [None] * len(labels["key"]))
+    sources = labels.get("source") or [None] * len(labels["key"])
+    rows = zip(labels["key"], labels["split"], labels["raw_path"], sources, strict=True)
     return sum(sel.accepts({"key": k, "split": s, "raw_path": r, "source": o}) for k, s, r, o in rows)
 
 

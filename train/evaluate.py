@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -14,21 +15,18 @@ from appdgen.dataset.shardset import open_shards, read_labels, target_labels
 from train import checkpoint, runtime
 from train.data import Selection, StreamSpec, make_loader
 from train.errors import TrainError
-from train.loop import to_input
-from train.model import AppdNet
-from train.scoring import (SEQUENCE_SEED, THRESHOLD as DETECTION_THRESHOLD, bin_edges, bin_index, metrics,
-                           sequence_metrics, sequence_pairs)
+from train.inference import predict
+from train.scoring import SEQUENCE_SEED, bin_edges, bin_index, metrics, sequence_metrics, sequence_pairs
+from train.scoring import THRESHOLD as DETECTION_THRESHOLD
 
 
-@torch.no_grad()
-def predict_split(model: AppdNet, loader, device: torch.device, dtype) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """(keys, true APPD %, predicted APPD %) over every sample a loader yields."""
+def predict_split(model: torch.nn.Module, loader: Iterable[dict], device: torch.device, dtype: torch.dtype | None
+                  ) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """(keys, true labels, predictions; the target's %) over every sample a loader yields."""
     keys: list[str] = []
     true: list[np.ndarray] = []
     pred: list[np.ndarray] = []
-    for batch in loader:
-        with runtime.autocast(device, dtype):
-            out = model(to_input(batch, device)).float()
+    for batch, out in predict(model, loader, device, dtype):
         keys += list(batch["key"])
         true.append(batch["label"].numpy())
         pred.append(out.cpu().numpy())

@@ -110,9 +110,9 @@ def check(name: str, diff: float | None) -> None:
 
 
 def to_json(model: torch.nn.Module, path: Path, meta: dict) -> float:
-    """The plumb-line floor as appdgen.detect.plumbline's JSON (with meta), which PlumbLine.load reads without torch;
+    """The plumb-line floor as train.plumbline's JSON (with meta), which PlumbLine.load reads without torch;
     returns the largest difference between the reloaded detector and the module on example images."""
-    from appdgen.detect.plumbline import PlumbLine
+    from train.plumbline import PlumbLine
 
     floor = model.floor()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -134,7 +134,7 @@ def export(ckpt_path: str, onnx_path: str | None = None, pt2_path: str | None = 
     floor = model.cfg.arch == "plumbline"
     if floor and (onnx_path or pt2_path):
         raise TrainError(f"{ckpt_path}: the plumb-line floor runs OpenCV's line detector, which neither ONNX nor "
-                         "torch.export can hold; export it with --json (appdgen.detect.plumbline.PlumbLine.load reads "
+                         "torch.export can hold; export it with --json (train.plumbline.PlumbLine.load reads "
                          "it without torch)")
     if json_path and not floor:
         raise TrainError(f"{ckpt_path}: --json writes the plumb-line floor; this checkpoint is the "

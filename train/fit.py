@@ -6,57 +6,22 @@ import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import torch
 
 from appdgen.dataset.layout import BUILD_JSON, INDEX, TARGETS
 from appdgen.dataset.shardset import ShardSet, open_shards, read_labels, target_labels
 from train import checkpoint, runtime
+from train.closed_form import fit_closed_form
 from train.data import Selection, ShardStream, StreamSpec, channel_stats, count_selected, make_loader
 from train.errors import TrainError
 from train.holdout import holdout_unit, val_choice
 from train.loop import Trainer, resumed, total_steps
 from train.model import check_size
-
-if TYPE_CHECKING:
-    from train.online.options import OnlineOptions
+from train.options import FitOptions
 
 #: Options that fix the order samples arrive in; a resume with the same ones continues the data exactly.
 RESUME_SAME = ("batch", "workers", "seed", "shuffle_buffer")
-
-
-@dataclass(frozen=True)
-class FitOptions:
-    """Everything `python -m train fit` takes; stored in the checkpoint as plain values."""
-
-    shards: str | None  # an offline build; None with `online`
-    run: str
-    split: str = "train"
-    val_split: str = "auto"  # a split name, "auto" (val if present, else holdout) or "none"
-    val_fraction: float = 0.1  # recordings (or raw images) held out by hash when there is no val split
-    val_by: str = "recording"  # what the holdout keeps whole: "recording" (KITTI drive, else folder) or "image"
-    steps: int | None = None
-    epochs: float | None = None
-    batch: int = 32
-    lr: float = 1e-4
-    workers: int = 1
-    ckpt_every: int = 200
-    val_every: int | None = None  # default: every checkpoint
-    val_max: int = 1000
-    log_every: int = 10
-    max_minutes: float | None = None  # stop early (checkpointed, validated) after this wall time
-    shuffle_buffer: int = 1000
-    resume: bool = False
-    seed: int = 0
-    device: str = "auto"
-    precision: str = "auto"
-    stats_samples: int = 256
-    normalize: str = "channel"  # "channel": per-channel mean/std; "pixel": a per-pixel mean image, channel std
-    target: str = "appd"  # what the network learns (layout.TARGETS): appd_pct, the paper's, or bend_pct
-    model: str = "paper"  # the network (train.nets.MODELS)
-    quiet: bool = False
-    online: "OnlineOptions | None" = None  # train on fresh pairs drawn as it goes (train.online), not shards
 
 
 @dataclass(frozen=True)
@@ -69,6 +34,10 @@ class DataPlan:
     n_train: int | None
     n_val: int | None
     labels: Mapping[str, float] | None = None
+
+    def training(self) -> str:
+        """What trains, in words (the Plan protocol)."""
+        return self.train.describe()
 
 
 def only_split(ss: ShardSet, opts: FitOptions) -> FitOptions:
@@ -94,7 +63,7 @@ def plan_data(ss: ShardSet, labels: dict | None, opts: FitOptions) -> DataPlan:
         train, val = Selection(opts.split), Selection(val_split)
     else:
         by, held = holdout_unit(labels, opts.split, opts.val_by, opts.val_fraction)
-        raw = dict(zip(labels["key"], labels["raw_path"])) if labels else None
+        raw = dict(zip(labels["key"], labels["raw_path"], strict=True)) if labels else None
         if raw is None:
             print(f"fit: no {INDEX}; holding out by each sample's json raw_path, else its key", file=sys.stderr)
         train = Selection(opts.split, opts.val_fraction, "train", raw, by, held)
@@ -140,7 +109,7 @@ def new_state(ss: ShardSet, labels: dict | None, plan: DataPlan, opts: FitOption
 
 def _train_label_mean(labels: dict, sel: Selection, column: str) -> float:
     """Mean label (`column`, e.g. appd_pct) over a selection's rows of labels.parquet (exact, no image decoding)."""
-    vals = [a for k, s, r, a in zip(labels["key"], labels["split"], labels["raw_path"], labels[column])
+    vals = [a for k, s, r, a in zip(labels["key"], labels["split"], labels["raw_path"], labels[column], strict=True)
             if sel.accepts({"key": k, "split": s, "raw_path": r})]
     return sum(vals) / len(vals)
 
@@ -177,7 +146,7 @@ def fit(opts: FitOptions) -> dict | None:
     else:
         trainer, steps = shard_trainer(opts, device, rank, world, run)
     try:
-        summary = trainer.train(steps)
+        summary = fit_closed_form(trainer, steps) if trainer.closed_form else trainer.train(steps)
     finally:
         runtime.finish_distributed()
     return summary if rank == 0 else None

@@ -72,7 +72,8 @@ def holdout_unit(labels: Mapping[str, list] | None, split: str, val_by: str, val
     if val_by == "image" or labels is None:
         return val_by, None
     sources = labels.get("source") or [None] * len(labels["split"])
-    found = {holdout_group(str(r), o) for s, r, o in zip(labels["split"], labels["raw_path"], sources) if s == split}
+    rows = zip(labels["split"], labels["raw_path"], sources, strict=True)
+    found = {holdout_group(str(r), o) for s, r, o in rows if s == split}
     if len(found) < 2:
         print(f"fit: split {split!r} is one recording ({next(iter(found), '?')!r}); holding out by image",
               file=sys.stderr)
@@ -87,7 +88,8 @@ def frame_sides(images: list[RawImage], split: str, val_split: str, val_fraction
     unsplit = all(i.split == "all" for i in images)  # --split-by none: every frame is the training split's
     train = [i for i in images if unsplit or i.split == split]
     if not train:
-        raise TrainError(f"--images: no frames of split {split!r} (found {', '.join(sorted({i.split for i in images}))})")
+        found = ", ".join(sorted({i.split for i in images}))
+        raise TrainError(f"--images: no frames of split {split!r} (found {found})")
     val_split = val_choice(val_split, any(i.split == "val" for i in images) and not unsplit)
     if val_split == "none":
         return train, []
@@ -99,4 +101,5 @@ def frame_sides(images: list[RawImage], split: str, val_split: str, val_fraction
     labels = {"split": [split] * len(train), "raw_path": [i.name for i in train]}
     by, held = holdout_unit(labels, split, val_by, val_fraction)
     sides = [is_held(i.name, None, by, held, val_fraction) for i in train]
-    return [i for i, v in zip(train, sides) if not v], [i for i, v in zip(train, sides) if v]
+    return ([i for i, v in zip(train, sides, strict=True) if not v],
+            [i for i, v in zip(train, sides, strict=True) if v])

@@ -12,22 +12,20 @@ import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
 from appdgen.dataset.layout import BUILD_JSON, INDEX, TARGETS
-from appdgen.detect.plumbline import PlumbLine
 from appdgen.util.progress import Progress
 from train import checkpoint, runtime
 from train.errors import TrainError
-from train.model import AppdNet
-from train.nets import image_features
+from train.inference import predict, to_input
+from train.options import FitOptions, Plan
 
 LOG_COLUMNS = ("step", "train_loss", "val_loss", "val_mae", "lr", "images_per_s")
 
 
-def total_steps(opts, n_train: int | None, world: int) -> int:
+def total_steps(opts: FitOptions, n_train: int | None, world: int) -> int:
     """Optimizer steps to run: --steps, or --epochs × samples / (batch × ranks)."""
     if (opts.steps is None) == (opts.epochs is None):
         raise TrainError("give exactly one of --steps or --epochs")
@@ -38,7 +36,7 @@ def total_steps(opts, n_train: int | None, world: int) -> int:
     return max(1, math.ceil(opts.epochs * n_train / (opts.batch * world)))
 
 
-def resumed(run: Path, opts, size: tuple[int, int]) -> dict | None:
+def resumed(run: Path, opts: FitOptions, size: tuple[int, int]) -> dict | None:
     """run/last.pt with --resume, None to start fresh; refuses to overwrite a run without --resume, and to resume
     one of the other kind (--online or --shards), on another --target or of another image size (w, h)."""
     last = run / "last.pt"
@@ -85,12 +83,6 @@ def _fmt(v: float | int) -> str:
     return str(v) if isinstance(v, int) else f"{v:.6g}"
 
 
-def to_input(batch: dict, device: torch.device) -> torch.Tensor:
-    """uint8 N×3×H×W → float [0, 1] on device, channels_last (≈2× faster convs on CPU and GPU)."""
-    x = batch["image"].to(device, non_blocking=True).float().div_(255.0)
-    return x.contiguous(memory_format=torch.channels_last)
-
-
 def check_shapes(pred: torch.Tensor, target: torch.Tensor) -> None:
     """Refuse a prediction whose shape is not the target's: an (N, 1) prediction against an (N,) target broadcasts
     MSE over all N×N pairs, whose optimum is the batch mean (the bug the paper's authors fixed in "Fixed loss")."""
@@ -119,37 +111,32 @@ def train_step(net: torch.nn.Module, opt: torch.optim.Optimizer, batch: dict, de
     return loss.detach()
 
 
-@torch.no_grad()
-def validate(model: AppdNet, loader, device: torch.device, dtype, limit: int) -> dict:
-    """MSE loss and MAE (APPD %) over up to `limit` samples."""
-    model.eval()
+def validate(model: torch.nn.Module, loader: Iterable[dict], device: torch.device, dtype: torch.dtype | None,
+             limit: int) -> dict:
+    """MSE loss and MAE (the target's %) over up to `limit` samples."""
     sq = ab = 0.0
     n = 0
-    for batch in loader:
-        with runtime.autocast(device, dtype):
-            pred = model(to_input(batch, device)).float()
+    for batch, pred in predict(model, loader, device, dtype, limit):
         err = pred - batch["label"].to(device)
         sq += float((err**2).sum())
         ab += float(err.abs().sum())
         n += len(err)
-        if n >= limit:
-            break
-    model.train()
     return {"val_loss": sq / max(n, 1), "val_mae": ab / max(n, 1), "val_n": n}
 
 
 class Trainer:
     """The training loop and its bookkeeping for one process (rank) of a run, over any data: a kind of run (the
-    offline fit's shards, the online fit's fresh pairs) gives loader, val_loader and announce. `opts` is fit's
-    FitOptions; `plan` says what trains and validates (its `val` None when nothing does)."""
+    offline fit's shards, the online fit's fresh pairs) gives loader, val_loader and announce. `plan` says what
+    trains and validates (its `val` None when nothing does). A model without parameters (the plumb-line floor) has no
+    optimiser: train.closed_form fits it, beside this loop."""
 
-    def __init__(self, opts, plan, state: dict, device: torch.device, rank: int, world: int, run: Path) -> None:
+    def __init__(self, opts: FitOptions, plan: Plan, state: dict, device: torch.device, rank: int, world: int,
+                 run: Path) -> None:
         self.opts, self.plan, self.state = opts, plan, state
         self.device, self.rank, self.world, self.run = device, rank, world, run
         self.dtype = runtime.autocast_dtype(device, opts.precision)
         self.model = checkpoint.build_model(state).to(device).to(memory_format=torch.channels_last).train()
         params = list(self.model.parameters())
-        # A model without parameters (the plumb-line floor) is solved in closed form: no optimiser.
         self.opt = adam(params, opts.lr) if params else None
         if state["optimizer"] is not None and self.opt is not None:
             self.opt.load_state_dict(state["optimizer"])
@@ -158,7 +145,7 @@ class Trainer:
         if state.get("rng") is not None:
             torch.set_rng_state(state["rng"])  # dropout continues as it would have: a resume repeats the losses
         self.net = self.model
-        if world > 1 and params:  # solve() refuses a closed-form model under torchrun
+        if world > 1 and params:  # train.closed_form refuses a closed-form model under torchrun
             from torch.nn.parallel import DistributedDataParallel
 
             self.net = DistributedDataParallel(self.model, device_ids=[device.index] if device.type == "cuda" else None)
@@ -175,14 +162,27 @@ class Trainer:
         """Validation batches (rank 0 validates alone)."""
         raise NotImplementedError
 
+    @property
+    def closed_form(self) -> bool:
+        """Whether the model has no parameters to train (the plumb-line floor: train.closed_form fits it)."""
+        return self.opt is None
+
+    def finished(self, steps: int) -> dict | None:
+        """The summary, said on stderr, when the checkpoint already holds `steps` steps; None when work is left."""
+        step = int(self.state["step"])
+        if step < steps:
+            return None
+        print(f"fit: checkpoint is already at step {step} ≥ {steps}; nothing to do", file=sys.stderr)
+        return self.summary(step, None, {})
+
     def train(self, steps: int) -> dict:
         """Run until `steps` optimizer steps; log, validate, checkpoint on the way and at the end."""
+        if self.closed_form:
+            raise TrainError(f"--model {self.model.cfg.arch} has no parameters to train: fit it with train.closed_form")
+        done = self.finished(steps)
+        if done is not None:
+            return done
         step = int(self.state["step"])
-        if step >= steps:
-            print(f"fit: checkpoint is already at step {step} ≥ {steps}; nothing to do", file=sys.stderr)
-            return self.summary(step, None, {})
-        if self.opt is None:
-            return self.solve(steps)
         self.announce(step, steps)
         progress = Progress(steps, "steps", enabled=self.rank == 0 and not self.opts.quiet, every=30.0, done=step)
         batches, window = self.loader(step), Window(self.device)
@@ -190,7 +190,7 @@ class Trainer:
         while step < steps:
             batch = next(batches, None)
             if batch is None:
-                raise TrainError(f"no training samples for {self.plan.train.describe()} on rank {self.rank}")
+                raise TrainError(f"no training samples for {self.plan.training()} on rank {self.rank}")
             window.add(train_step(self.net, self.opt, batch, self.device, self.dtype), len(batch["label"]) * self.world)
             step += 1
             if step % self.opts.log_every == 0 and deadline.passed():
@@ -201,37 +201,6 @@ class Trainer:
             last = self.bookkeeping(step, steps, window, progress) or last
         progress.close()
         return self.summary(step, last["train_loss"], {k: v for k, v in last.items() if k.startswith("val")})
-
-    def solve(self, steps: int) -> dict:
-        """Fit a closed-form model (the plumb-line floor) on `steps` batches of training images (fewer when
-        --max-minutes runs out): their features, one ridge (alpha by cross-validation), then validate and save."""
-        if self.world > 1:
-            raise TrainError(f"--model {self.model.cfg.arch} fits in one process: run it without torchrun")
-        self.announce(0, steps)
-        progress = Progress(steps, "batches", enabled=not self.opts.quiet, every=30.0)
-        batches, deadline, start = self.loader(0), Deadline(self.opts.max_minutes), time.perf_counter()
-        features, targets = [], []
-        while len(features) < steps:
-            batch = next(batches, None)
-            if batch is None:
-                raise TrainError(f"no training samples for {self.plan.train.describe()}")
-            features.append(image_features(to_input(batch, self.device)))
-            targets.append(batch["label"].numpy().astype(float).ravel())
-            progress.update(len(features), f"fit: line features of {sum(map(len, targets))} images")
-            if len(features) % self.opts.log_every == 0 and deadline.passed():
-                print(f"\nfit: --max-minutes {self.opts.max_minutes:g} reached; fitting on {len(features)} batches",
-                      file=sys.stderr)
-                break
-        progress.close()
-        x, y = np.concatenate(features), np.concatenate(targets)
-        floor = PlumbLine().fit_features(x, y, alpha=None)
-        self.model.set_floor(floor)
-        self.trained += (len(y), time.perf_counter() - start)
-        loss = float(np.mean((floor.predict_features(x) - y) ** 2))
-        val = self.validate(len(features))
-        self.log.row(step=len(features), train_loss=loss, images_per_s=self.trained.rate(), **val)
-        self.save(len(features))
-        return self.summary(len(features), loss, val)
 
     def bookkeeping(self, step: int, steps: int, window: "Window", progress: Progress) -> dict | None:
         """Log/validate/checkpoint when due; returns the logged row, None when nothing was logged."""

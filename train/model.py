@@ -3,6 +3,7 @@ it or the other networks by ModelConfig.arch."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from itertools import pairwise
 
 import torch
 from torch import nn
@@ -142,13 +143,13 @@ class AppdNet(Regressor):
             raise TrainError(f"channels must be one of {', '.join(INPUT_CHANNELS)}, got {cfg.channels!r}")
         self.normalize = Normalize(cfg.mean, cfg.std, (cfg.height, cfg.width) if cfg.normalize == "pixel" else None)
         chans = (cfg.in_channels, *cfg.filters)
-        self.features = nn.Sequential(*(conv_block(a, b) for a, b in zip(chans, chans[1:])))
+        self.features = nn.Sequential(*(conv_block(a, b) for a, b in pairwise(chans)))
         # Flatten, not global pooling: where an error shows in the image (centre vs border) carries
         # information about distortion, and the paper flattens too. Fixes the input size to cfg's.
         fw, fh = feature_size(cfg.width, cfg.height, len(cfg.filters))
         sizes = (cfg.filters[-1] * fw * fh, *cfg.dense)
         layers: list[nn.Module] = [nn.Flatten()]
-        for i, (a, b) in enumerate(zip(sizes, sizes[1:])):
+        for i, (a, b) in enumerate(pairwise(sizes)):
             layers += [nn.Linear(a, b), nn.ReLU(inplace=True)]
             if i == 0:
                 layers.append(nn.Dropout(cfg.dropout))

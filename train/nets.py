@@ -1,19 +1,21 @@
 """The models `fit --model` chooses from (MODELS, build): the paper's CNN (train.model.AppdNet), a stride-4
 patchify stem that reads full-resolution detail at about a third of the paper CNN's cost at a quarter of the
-resolution, and the plumb-line floor (appdgen.detect.plumbline) as a module, so that fit, evaluate and predict treat
+resolution, and the plumb-line floor (train.plumbline) as a module, so that fit, evaluate and predict treat
 it as they treat a network.
 
-At 348×128 the bent-line signal a single image carries is under a pixel (benchmarks/visibility.py); the paper feeds
+At 348×128 the bent-line signal a single image carries is under a pixel (studies/visibility.py); the paper feeds
 1392×512 for it, at 16× the cost. A 4×4/stride-4 convolution keeps each 4×4 patch's detail in its channels (48
 inputs → `PATCH_FILTERS[0]` outputs), after which stride-2 convolutions work on a 348×128 grid.
 """
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 import torch
 from torch import nn
 
-from appdgen.detect import plumbline
+from train import plumbline
 from train.errors import TrainError
 from train.model import INPUT_CHANNELS, NORMALIZE, AppdNet, ModelConfig, Normalize, Regressor
 
@@ -40,7 +42,7 @@ class PatchNet(Regressor):
         self.cfg = cfg
         self.normalize = Normalize(cfg.mean, cfg.std, (cfg.height, cfg.width) if cfg.normalize == "pixel" else None)
         layers: list[nn.Module] = [nn.Conv2d(cfg.in_channels, PATCH_FILTERS[0], PATCH, stride=PATCH), nn.ReLU(True)]
-        for a, b in zip(PATCH_FILTERS, PATCH_FILTERS[1:]):
+        for a, b in pairwise(PATCH_FILTERS):
             layers += [nn.Conv2d(a, b, 3, stride=2, padding=1), nn.ReLU(True)]
         self.features = nn.Sequential(*layers)
         with torch.no_grad():
@@ -52,7 +54,7 @@ class PatchNet(Regressor):
 
 class PlumbLineNet(nn.Module):
     """Image batch N×C×H×W in [0, 1] → N predictions of the fit's target (% of diagonal) by the plumb-line floor:
-    appdgen.detect.plumbline's features of each image, standardised, through its ridge. It has no parameters
+    train.plumbline's features of each image, standardised, through its ridge. It has no parameters
     (nothing for an optimiser): fit solves the ridge (set_floor) and the solution lives in buffers, so a checkpoint
     holds it."""
 
@@ -79,7 +81,7 @@ class PlumbLineNet(nn.Module):
         self.fitted.fill_(True)
 
     def floor(self) -> plumbline.PlumbLine:
-        """The ridge it holds, as appdgen.detect.plumbline's detector (AppdgenError before fit)."""
+        """The ridge it holds, as train.plumbline's detector (AppdgenError before fit)."""
         if not bool(self.fitted):
             raise TrainError("the plumb-line floor is not fitted yet")
         return plumbline.PlumbLine(self.mean.cpu().numpy(), self.scale.cpu().numpy(), self.weights.cpu().numpy(),

@@ -19,7 +19,7 @@ from appdgen.sources.files import IMAGE_SUFFIXES, list_images
 from appdgen.sources.frames import RawImage
 from train import checkpoint, runtime
 from train.errors import TrainError
-from train.model import AppdNet
+from train.inference import predict
 
 Preprocess = Callable[[np.ndarray, str], np.ndarray]
 #: One image of the sequence: its name, its timestamp (ns, frames of recordings) or None, and its decoder.
@@ -140,8 +140,8 @@ def rectifier(calib_path: str, camera: str | None, size: tuple[int, int], rule: 
         from appdgen.geometry.maps import rectify
         from appdgen.geometry.remap import remap_image
     except ImportError as exc:
-        raise TrainError(f"--calib needs appdgen's calibration, maps and remap modules, which are missing here ({exc}); "
-                         "rectify the images with `appdgen` first and predict without --calib") from None
+        raise TrainError(f"--calib needs appdgen's calibration, maps and remap modules, which are missing here "
+                         f"({exc}); rectify the images with `appdgen` first and predict without --calib") from None
     calib = load(calib_path, camera)
     rect = rectify(calib, size, max_fov=rule["max_fov"])
     interp = {"interp": rule["interp"]} if rule.get("interp") else {}  # unrecorded: remap_image's default
@@ -154,10 +154,9 @@ def rectifier(calib_path: str, camera: str | None, size: tuple[int, int], rule: 
     return prep
 
 
-def batches(items: Iterable[Item], prep: Preprocess, batch: int, channels: int = 3
-            ) -> Iterator[tuple[list[Item], torch.Tensor]]:
-    """(items, uint8 N×C×H×W) chunks of the sequence, decoded with the network's channels and preprocessed (each
-    item as it comes: a recording's decoder holds its file open only until the next frame)."""
+def batches(items: Iterable[Item], prep: Preprocess, batch: int, channels: int = 3) -> Iterator[dict]:
+    """Batches of the sequence ({"items": its items, "image": uint8 N×C×H×W}), decoded with the network's channels
+    and preprocessed (each item as it comes: a recording's decoder holds its file open only until the next frame)."""
     chunk: list[Item] = []
     imgs: list[np.ndarray] = []
     for item in items:
@@ -166,17 +165,10 @@ def batches(items: Iterable[Item], prep: Preprocess, batch: int, channels: int =
         img = prep(as_channels(decode(), channels), name)
         imgs.append(img.reshape(*img.shape[:2], -1))
         if len(chunk) == batch:
-            yield chunk, torch.from_numpy(np.stack(imgs).transpose(0, 3, 1, 2).copy())
+            yield {"items": chunk, "image": torch.from_numpy(np.stack(imgs).transpose(0, 3, 1, 2).copy())}
             chunk, imgs = [], []
     if chunk:
-        yield chunk, torch.from_numpy(np.stack(imgs).transpose(0, 3, 1, 2).copy())
-
-
-@torch.no_grad()
-def run_model(model: AppdNet, images: torch.Tensor, device: torch.device) -> list[float]:
-    """Predicted APPD (% of diagonal) per image, fp32 (deployment numbers should not depend on autocast)."""
-    x = images.to(device).float().div_(255.0).contiguous(memory_format=torch.channels_last)
-    return model(x).float().cpu().tolist()
+        yield {"items": chunk, "image": torch.from_numpy(np.stack(imgs).transpose(0, 3, 1, 2).copy())}
 
 
 class RunningVerdict:
@@ -214,10 +206,10 @@ def predict_stream(ckpt_path: str, inputs: list[str], calib: str | None = None, 
     prep = rectifier(calib, camera, size, rule) if calib else size_check(size, resize)
     verdicts = RunningVerdict(window, threshold)
     found = False
-    for chunk, images in batches(sequence(inputs, frames or PredictFrames(), calib, camera), prep, batch,
-                                 model.cfg.in_channels):
+    chunks = batches(sequence(inputs, frames or PredictFrames(), calib, camera), prep, batch, model.cfg.in_channels)
+    for chunk, out in predict(model, chunks, dev):  # fp32: deployment numbers should not depend on autocast
         found = True
-        for (name, stamp, _), value in zip(chunk, run_model(model, images, dev)):
+        for (name, stamp, _), value in zip(chunk["items"], out.cpu().tolist(), strict=True):
             yield verdicts.add(name, value, stamp)
     if not found:
         raise TrainError(f"no frames chosen in {', '.join(inputs)}")

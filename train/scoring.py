@@ -17,11 +17,20 @@ N_BINS = 10
 SEQUENCE_SEED = 7003
 #: % APPD: the detection threshold whose AUC the sequence metrics report.
 THRESHOLD = 0.5
-#: A pair's labels: name → label of a draw under a recipe (train.online.recipe.PairRecipe), % of the raw diagonal.
+#: A label: its value of a draw under a recipe (train.online.recipe.PairRecipe), % of the raw diagonal.
 Label = Callable[[object, object], object]
-LABELS: dict[str, Label] = {t: (lambda t: lambda recipe, draw: px_to_pct(target_px(recipe.sampler(), draw, t),
-                                                                          recipe.reference))(t)
-                            for t in ("appd", "bend")}
+
+
+def target_label(target: str) -> Label:
+    """The Label of a target (appd, bend: sampling.sampler.target_px), % of the raw diagonal."""
+    def label(recipe: object, draw: object) -> float:
+        """The target's value of the draw, % of the recipe reference's raw diagonal."""
+        return px_to_pct(target_px(recipe.sampler(), draw, target), recipe.reference)
+    return label
+
+
+#: A pair's labels: name → Label.
+LABELS: dict[str, Label] = {t: target_label(t) for t in ("appd", "bend")}
 
 
 # --- per image and per bin ---------------------------------------------------------------------------------
@@ -87,7 +96,7 @@ def make_pairs(recipe, frames: np.ndarray, draws: list[tuple[int, int]], frame_i
     recipe's sampler on frame frame_ids[j], rendered as the cpu renderer (and `appdgen build`) does."""
     sampler = recipe.sampler()
     images, values = [], {name: [] for name in labels}
-    for (seed, index), frame in zip(draws, frame_ids):
+    for (seed, index), frame in zip(draws, frame_ids, strict=True):
         draw = sampler.draw(seed, index)
         images.append(recipe.render(frames[frame], draw).transpose(2, 0, 1))
         for name, label in labels.items():

@@ -22,7 +22,8 @@ DEVICE_INTERPOLATIONS: dict[str, str] = {"nearest": "nearest", "linear": "biline
 
 
 def maps_batch(calibs: Sequence[Calibration], new_ks: Sequence[np.ndarray] | np.ndarray, size: tuple[int, int],
-               device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
+               device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32
+               ) -> tuple[torch.Tensor, torch.Tensor]:
     """(map_x, map_y): N×h×w raw-pixel positions of each output pixel of camera new_ks[i] (3×3) at size (w, h),
     through calibs[i], computed on `device` in `dtype`."""
     like = torch.empty(0, device=device, dtype=dtype)

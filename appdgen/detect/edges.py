@@ -59,9 +59,10 @@ def empty_points() -> EdgePoints:
     return EdgePoints(z, z, z, z, np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), z, z)
 
 
-def segment_fit(s: np.ndarray, z: np.ndarray, seg: np.ndarray, w: np.ndarray, nseg: int, degree: int
-                ) -> np.ndarray:
-    """Per-segment weighted least-squares polynomial in s of z (N,) or each column of z (N, M): fitted values."""
+def segment_coefficients(s: np.ndarray, z: np.ndarray, seg: np.ndarray, w: np.ndarray, nseg: int, degree: int
+                         ) -> np.ndarray:
+    """Per-segment weighted least-squares polynomial in s (px) of z (N,) or each column of z (N, M): its
+    coefficients, lowest power first (S × (d+1), or S × (d+1) × M; units of z per px^k)."""
     powers = np.stack([s ** k for k in range(degree + 1)], axis=1)  # N × (d+1)
     gram = np.zeros((nseg, degree + 1, degree + 1))
     for a in range(degree + 1):
@@ -73,7 +74,15 @@ def segment_fit(s: np.ndarray, z: np.ndarray, seg: np.ndarray, w: np.ndarray, ns
     rhs = np.stack([np.stack([np.bincount(seg, w * powers[:, a] * zz[:, j], nseg) for a in range(degree + 1)], 1)
                     for j in range(zz.shape[1])], axis=2)  # S × (d+1) × M
     coef = np.linalg.solve(gram, rhs)
-    fitted = np.einsum("nd,ndm->nm", powers, coef[seg])
+    return coef[..., 0] if z.ndim == 1 else coef
+
+
+def segment_fit(s: np.ndarray, z: np.ndarray, seg: np.ndarray, w: np.ndarray, nseg: int, degree: int
+                ) -> np.ndarray:
+    """Per-segment weighted least-squares polynomial in s of z (N,) or each column of z (N, M): fitted values."""
+    powers = np.stack([s ** k for k in range(degree + 1)], axis=1)  # N × (d+1)
+    coef = segment_coefficients(s, z, seg, w, nseg, degree)
+    fitted = np.einsum("nd,ndm->nm", powers, (coef[..., None] if z.ndim == 1 else coef)[seg])
     return fitted[:, 0] if z.ndim == 1 else fitted
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -68,6 +69,25 @@ def _raw(calib: Calibration, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, 
     """Undistorted normalized coordinates → raw pixels (the map M̂ at those points)."""
     xd, yd = distort_normalized(x, y, calib)
     return calib.fx * xd + calib.cx, calib.fy * yd + calib.cy
+
+
+class AffineRest(NamedTuple):
+    """A field's least-squares affine fit and what it leaves: the rest at each point (pixels) and the fit's
+    coefficients (t, a_u, a_v: value = t + a_u·u + a_v·v, pixels and pixels per pixel) for u and for v."""
+
+    rest_u: np.ndarray
+    rest_v: np.ndarray
+    coef_u: np.ndarray
+    coef_v: np.ndarray
+
+
+def affine_rest(u: np.ndarray, v: np.ndarray, du: np.ndarray, dv: np.ndarray, design: np.ndarray | None = None
+                ) -> AffineRest:
+    """The part of a field (du, dv) at points (u, v) that no affine map of (u, v) explains, by least squares
+    (pixels); positions or displacements give the same rest. `design`: the fit's N×3 matrix [1, u, v], when cached."""
+    design = np.column_stack([np.ones_like(u), u, v]) if design is None else design
+    coef_u, coef_v = (np.linalg.lstsq(design, w, rcond=None)[0] for w in (du, dv))
+    return AffineRest(du - design @ coef_u, dv - design @ coef_v, coef_u, coef_v)
 
 
 @dataclass(frozen=True)
@@ -143,10 +163,8 @@ def output_rest(reference: Calibration, reference_crop: Crop, sample: Calibratio
     W(p) = A·p + t + r(p) fitted by least squares over the given points. Edge points p_i of a line straight in
     the reference rectification have p_i + rest(p_i) collinear: what the sample image shows of the bend."""
     u, v = np.asarray(u, np.float64).ravel(), np.asarray(v, np.float64).ravel()
-    wu, wv = output_warp(reference, reference_crop, sample, sample_crop, u, v)
-    design = np.column_stack([np.ones_like(u), u, v])
-    coef_u, coef_v = (np.linalg.lstsq(design, w, rcond=None)[0] for w in (wu, wv))
-    rest = np.column_stack([wu - design @ coef_u, wv - design @ coef_v])
+    fit = affine_rest(u, v, *output_warp(reference, reference_crop, sample, sample_crop, u, v))
+    rest, coef_u, coef_v = np.column_stack([fit.rest_u, fit.rest_v]), fit.coef_u, fit.coef_v
     a = np.array([[coef_u[1], coef_u[2]], [coef_v[1], coef_v[2]]])
     return np.linalg.solve(a, rest.T).T
 
@@ -159,8 +177,7 @@ def _split(reference: Calibration, reference_crop: Crop, sample: Calibration, sa
     ref = _reference_grid(reference, reference_crop, columns)
     u, v, design, k = ref.u, ref.v, ref.design, ref.k
     raw_u, raw_v, x, y, wu, wv = _warp(reference, k, sample, sample_crop, u, v)
-    coef_u, coef_v = (np.linalg.lstsq(design, w, rcond=None)[0] for w in (wu, wv))
-    ru, rv = wu - design @ coef_u, wv - design @ coef_v
+    ru, rv, coef_u, coef_v = affine_rest(u, v, wu, wv, design)
     # J*(W(p)) = diag(fx, fy)·∂distort/∂(x, y)·K̂*⁻¹: raw pixels per reference output pixel where the ray lands.
     j11, j12, j21, j22 = distortion_jacobian(x, y, reference)
     sx, sy = reference.fx / k[0, 0], reference.fy / k[1, 1]

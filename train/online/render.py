@@ -25,7 +25,7 @@ class DeviceFrames:
     def render(self, batch: dict) -> torch.Tensor:
         """uint8 B×3×h×w images of a batch's draws (train.warp.rectify_batch)."""
         names = self.recipe.reference.param_names
-        calibs = [self.recipe.reference.replace(**dict(zip(names, p))) for p in batch["params"].tolist()]
+        calibs = [self.recipe.reference.replace(**dict(zip(names, p, strict=True))) for p in batch["params"].tolist()]
         raw = self.raw[batch["frame"].to(self.device)]
         return rectify_batch(raw, calibs, list(batch["new_k"].numpy()), self.recipe.size, self.recipe.sampling.interp)
 

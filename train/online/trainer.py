@@ -18,6 +18,7 @@ from train.online.options import SAME_DATA, OnlineOptions, pick_render
 from train.online.pairs import VAL_SEED, PairSpec, pair_loader
 from train.online.recipe import decode_frames, open_recipe
 from train.online.render import DeviceFrames, Feed, image_stats, rendered
+from train.options import FitOptions
 
 
 @dataclass(frozen=True)
@@ -29,11 +30,15 @@ class OnlinePlan:
     n_train: int
     n_val: int | None
 
+    def training(self) -> str:
+        """What trains, in words (the Plan protocol)."""
+        return self.train
+
 
 class OnlineData:
     """Training frames in memory and the online validation set (or an offline build), for one rank."""
 
-    def __init__(self, opts, device: torch.device, rank: int, world: int) -> None:
+    def __init__(self, opts: FitOptions, device: torch.device, rank: int, world: int) -> None:
         o: OnlineOptions = opts.online
         self.opts, self.device, self.rank, self.world = opts, device, rank, world
         self.recipe, images = open_recipe(o, opts.target)
@@ -107,7 +112,8 @@ class OnlineData:
             raise TrainError(f"{last}: started with another {names}; resume with the same, or choose another --run")
 
 
-def online_trainer(opts, device: torch.device, rank: int, world: int, run: Path):
+def online_trainer(opts: FitOptions, device: torch.device, rank: int, world: int, run: Path
+                   ) -> tuple[OnlineTrainer, int]:
     """(the Trainer of an online run, its total steps): frames decoded, state fresh or resumed."""
     if opts.shards:
         raise TrainError("--online trains on --images; give --shards only without --online")
@@ -126,7 +132,7 @@ def online_trainer(opts, device: torch.device, rank: int, world: int, run: Path)
 class OnlineTrainer(Trainer):
     """fit's training loop fed by online pairs; its summary adds how long the loop waited for data."""
 
-    def __init__(self, opts, data: OnlineData, state: dict, device: torch.device, rank: int, world: int,
+    def __init__(self, opts: FitOptions, data: OnlineData, state: dict, device: torch.device, rank: int, world: int,
                  run: Path) -> None:
         super().__init__(opts, data.plan, state, device, rank, world, run)
         self.data = data

@@ -1,12 +1,13 @@
-"""The classical floor (issue 23 item 2): a plumb-line miscalibration detector, line curvature plus a ridge fit.
+"""The plumb-line floor: a miscalibration detector from line curvature and a ridge fit (the trainer's
+--model plumbline, studies.detector's floor arms).
 
 A rectification with the wrong calibration leaves a smooth non-affine warp in the image, which bends the scene's
-straight edges. line_features measures that bend: long segments (OpenCV's LSD on a copy at most DETECT_WIDTH
-wide), then the edge's sub-pixel position across each one at SAMPLES points (the peak of the directional
-derivative along its normal, on the full-resolution image), and from those offsets
+straight edges. line_features measures that bend on appdgen.detect.edges' evidence (LSD segments joined along
+collinear pieces, their edge points refined to sub-pixel along the normal), with lengths scaled to the image
+(edge_params), and from each segment's quadratic through its points (detect.edges.segment_coefficients)
 
-- each segment's bulge: the quadratic term of its offsets, the middle's distance from the chord, signed positive
-  away from the image centre (a radial error bows lines away from or towards the centre, more the further out);
+- its bulge: the middle's distance from the chord, signed positive away from the image centre (a radial error
+  bows lines away from or towards the centre, more the further out);
 - the radial coefficient k (a field k·(x, y)·ρ² in centred coordinates of diagonal units) that best explains all
   bulges, robustly weighted, and the mean length of that field's non-affine part: an estimate of the label's bend.
 
@@ -27,30 +28,25 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from appdgen.detect.edges import EdgeParams, EdgePoints, edge_points, segment_coefficients
 from appdgen.errors import AppdgenError
+from appdgen.geometry.bend import affine_rest
 
-#: LSD runs on a copy at most this wide (INTER_AREA): long edges survive, texture fragments less (73 of 899 segments
-#: were long at full 1392×512), and it is faster; the offsets are still measured on the full-resolution gradient.
+#: LSD reads the image at LSD_SCALE, or at most DETECT_WIDTH pixels wide: long edges survive, texture fragments
+#: less, and it is faster; the edge points are still refined on the full-resolution gradient.
 DETECT_WIDTH = 720
-#: A segment counts when at least this long (fraction of the image diagonal, and pixels).
+LSD_SCALE = 0.8
+#: A (joined) segment counts when at least this long (fraction of the image diagonal, and pixels).
 MIN_LENGTH = 0.035
 MIN_LENGTH_PX = 10.0
 MAX_SEGMENTS = 240  # the longest ones; more add little and cost time
-SAMPLES = 31  # positions along a segment, its ends left out: a corner's other edge pulls the peak towards itself
-END_MARGIN = 0.1  # of the length, and at least END_MARGIN_PX
-END_MARGIN_PX = 3.0
-REACH_PX = 3.0  # how far across a segment the edge is looked for (pixels of the image), both sides
-STEP_PX = 0.5
-#: How the gradient is read between pixels. Against bilinear, out-of-fold Spearman ρ on bend at 1392×512 over three
-#: sets of fresh pairs (seeds 0, 1, 2; 100, 60, 120 pairs): 0.47 / 0.61 / 0.65 against 0.55 / 0.40 / 0.57; at
-#: 348×128 a wash (0.08 / 0.28 / 0.25 against 0.11 / 0.21 / 0.25).
-PROFILE_INTERP = cv2.INTER_CUBIC
-SOBEL_SIZE = 3
-MIN_VALID = 8  # samples with a clear edge a segment needs
+#: Edge points along a segment: one every min length / POINTS_PER_MIN_LENGTH, between MIN_STEP_PX and the
+#: edge evidence's own step (3 px).
+POINTS_PER_MIN_LENGTH = 16
+MIN_STEP_PX = 0.5
 SMALLEST_SIDE = 16  # pixels: a smaller image has no measurable lines; its features are zeros
 #: Diagonals: how far the principal point may sit from the image centre. Using the reference crop's own principal
-#: point instead (0.022 diagonals above the centre for KITTI) ranked bend no better (out-of-fold ρ 0.64/0.52/0.25
-#: against 0.65/0.61/0.25 on three sets of pairs), so the image centre stays: it needs no calibration.
+#: point instead ranked bend no better, so the image centre stays: it needs no calibration.
 CENTRE_SPREAD = 0.05
 CAUCHY = 2.0  # the reweighting's scale, in standard errors of a segment's own k
 ROUNDS = 3
@@ -61,10 +57,12 @@ GRID = (48, 18)  # columns, rows of the grid the radial field's non-affine part 
 #: of the diagonal (an estimate of bend_pct), its signed coefficient k, and log(1 + Σ (lever / noise)²): how
 #: firmly the scene's lines pin k down. Richer vectors (segment counts, edge noise, bulge and curvature statistics
 #: binned by distance from the centre, a decentred plumb-line field, the vanishing point) ranked bend worse after
-#: the same ridge fit on the same frames (issue 23's notes), and the linear floor must work from a few dozen images.
+#: the same ridge fit on the same frames, and the linear floor must work from a few dozen images.
 FEATURE_NAMES: tuple[str, ...] = ("radial_bend", "radial_k1", "radial_support")
 FEATURES: int = len(FEATURE_NAMES)
-FORMAT = "appdgen.plumbline/1"
+#: The saved detector's format: /2 since the features are read off detect.edges' evidence (a /1 ridge was fitted
+#: on another profile's features and would mispredict on these).
+FORMAT = "appdgen.plumbline/2"
 
 
 def _grey(image: np.ndarray) -> np.ndarray:
@@ -81,87 +79,39 @@ def _grey(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
-def segments(grey: np.ndarray) -> np.ndarray:
-    """Long line segments (x0, y0, x1, y1) in pixels of the image, longest first (S×4 float64)."""
-    height, width = grey.shape
-    factor = min(1.0, DETECT_WIDTH / width)
-    small = grey if factor == 1.0 else cv2.resize(grey, (round(width * factor), round(height * factor)),
-                                                  interpolation=cv2.INTER_AREA)
-    found = cv2.createLineSegmentDetector(cv2.LSD_REFINE_NONE).detect(small)[0]
-    if found is None or len(found) == 0:
-        return np.zeros((0, 4))
-    lines = found.reshape(-1, 4).astype(np.float64)
-    if factor != 1.0:  # pixel centres at integers: an edge at −0.5 stays there
-        lines = (lines + 0.5) * np.array([width / small.shape[1], height / small.shape[0]] * 2) - 0.5
-    length = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
-    keep = length >= max(MIN_LENGTH * math.hypot(width, height), MIN_LENGTH_PX)
-    order = np.argsort(-length[keep], kind="stable")[:MAX_SEGMENTS]
-    return lines[keep][order]
+def edge_params(width: int, height: int) -> EdgeParams:
+    """detect.edges' parameters for an image of this size (pixels): LSD at LSD_SCALE of at most DETECT_WIDTH
+    pixels, segments of MIN_LENGTH diagonals (MIN_LENGTH_PX at least), points closer on smaller images."""
+    base = EdgeParams()
+    min_len = max(MIN_LENGTH * math.hypot(width, height), MIN_LENGTH_PX)
+    return EdgeParams(lsd_scale=LSD_SCALE * min(1.0, DETECT_WIDTH / width), min_len=min_len,
+                      piece_len=min(base.piece_len, min_len),
+                      step=float(np.clip(min_len / POINTS_PER_MIN_LENGTH, MIN_STEP_PX, base.step)))
 
 
 @dataclass(frozen=True)
-class _Offsets:
-    """Edge positions across S segments at J samples: offsets along the outward normal (pixels), which samples had a
-    clear edge, the sample points (pixels) and where they lie along the sampled span."""
+class Bulges:
+    """Per segment (S): the bulge of its fitted quadratic (pixels, outward positive), the points' residual RMS about
+    it (pixels), its distance from the image centre and the half-span of its points (pixels)."""
 
-    offset: np.ndarray  # S×J
-    valid: np.ndarray  # S×J bool
-    points: np.ndarray  # S×J×2
-    normal: np.ndarray  # S×2, pointing away from the centre
-    t: np.ndarray  # J, 0…1 over the sampled span (the segment less its ends)
-
-
-def edge_offsets(grey: np.ndarray, lines: np.ndarray, centre: np.ndarray) -> _Offsets:
-    """Sub-pixel edge positions across each segment: the peak of the derivative along its normal (pixels), the
-    normal pointing away from `centre` (pixels)."""
-    a, b = lines[:, :2], lines[:, 2:]
-    direction = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
-    normal = np.column_stack([-direction[:, 1], direction[:, 0]])
-    outward = np.einsum("sk,sk->s", normal, (a + b) / 2 - centre)
-    normal = np.where((outward < 0)[:, None], -normal, normal)
-    t = np.linspace(0.0, 1.0, SAMPLES)
-    margin = np.maximum(END_MARGIN, END_MARGIN_PX / np.linalg.norm(b - a, axis=1))
-    along = margin[:, None] + (1 - 2 * margin[:, None]) * t[None, :]
-    points = a[:, None, :] + along[:, :, None] * (b - a)[:, None, :]
-    across = np.arange(-REACH_PX, REACH_PX + STEP_PX / 2, STEP_PX)
-    taps = points[:, :, None, :] + across[None, None, :, None] * normal[:, None, None, :]  # S×J×K×2
-    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=SOBEL_SIZE)
-    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=SOBEL_SIZE)
-    shape = taps.shape[:3]
-    map_x = taps[..., 0].reshape(-1, len(across)).astype(np.float32)
-    map_y = taps[..., 1].reshape(-1, len(across)).astype(np.float32)
-    sx = cv2.remap(gx, map_x, map_y, PROFILE_INTERP, borderMode=cv2.BORDER_REPLICATE).reshape(shape)
-    sy = cv2.remap(gy, map_x, map_y, PROFILE_INTERP, borderMode=cv2.BORDER_REPLICATE).reshape(shape)
-    profile = sx * normal[:, None, None, 0] + sy * normal[:, None, None, 1]  # derivative along the normal
-    middle = len(across) // 2
-    polarity = np.sign(profile[:, :, middle - 2:middle + 3].sum(axis=(1, 2)))  # the edge's own sign, not its twin's
-    profile = profile * polarity[:, None, None]
-    peak = np.argmax(profile, axis=2)
-    inner = np.clip(peak, 1, len(across) - 2)
-    left, top, right = (np.take_along_axis(profile, (inner + d)[..., None], axis=2)[..., 0] for d in (-1, 0, 1))
-    curve = left - 2 * top + right
-    shift = np.where(curve < 0, 0.5 * (left - right) / np.where(curve < 0, curve, -1.0), 0.0)
-    offset = across[inner] + np.clip(shift, -0.5, 0.5) * STEP_PX
-    strength = np.median(top, axis=1, keepdims=True)
-    valid = (peak == inner) & (curve < 0) & (top > 0.3 * strength) & (top > 4.0) & (polarity[:, None] != 0)
-    return _Offsets(offset, valid, points + offset[..., None] * normal[:, None, :], normal, t)
+    bulge: np.ndarray
+    rms: np.ndarray
+    distance: np.ndarray
+    half: np.ndarray
 
 
-def _quadratic(offsets: _Offsets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per segment: the bulge (middle minus chord of the fitted parabola, pixels, outward positive), the residual
-    RMS (pixels) and which samples are kept (clear edges, outliers of the parabola dropped once)."""
-    s = 2 * offsets.t - 1
-    design = np.column_stack([np.ones_like(s), s, s * s])  # J×3
-    valid = offsets.valid.copy()
-    for _ in range(2):
-        w = valid.astype(np.float64)
-        normal = np.einsum("sj,jk,jl->skl", w, design, design) + 1e-9 * np.eye(3)
-        coef = np.linalg.solve(normal, np.einsum("sj,jk,sj->sk", w, design, offsets.offset)[..., None])[..., 0]
-        residual = offsets.offset - coef @ design.T
-        count = w.sum(axis=1)
-        rms = np.sqrt((w * residual ** 2).sum(axis=1) / np.maximum(count - 3, 1))
-        valid &= np.abs(residual) <= np.maximum(3 * rms, 0.25)[:, None]
-    return -coef[:, 2], rms, valid & (valid.sum(axis=1) >= MIN_VALID)[:, None]
+def bulges(points: EdgePoints, centre: np.ndarray) -> Bulges:
+    """Each segment's quadratic through its edge points (offset e against arc position s in half-spans,
+    detect.edges), read as a bulge away from `centre` (pixels) over the half-span of its points."""
+    nseg, half = points.segments, points.length / 2
+    t = points.s / np.maximum(half, 1e-9)[points.seg]  # −1…1 over a segment's points: a well-scaled fit
+    coef = segment_coefficients(t, points.e, points.seg, np.ones_like(t), nseg, 2)
+    residual = points.e - np.einsum("nd,nd->n", np.stack([np.ones_like(t), t, t * t], axis=1), coef[points.seg])
+    count = np.bincount(points.seg, minlength=nseg)
+    rms = np.sqrt(np.bincount(points.seg, residual ** 2, nseg) / np.maximum(count - 3, 1))
+    across = np.einsum("sk,sk->s", points.normal, points.centre - centre)
+    outward = np.where(across < 0, -1.0, 1.0)
+    return Bulges(-outward * coef[:, 2], rms, np.abs(across), half)
 
 
 def radial_k1(bulge: np.ndarray, rms: np.ndarray, lever: np.ndarray, distance: np.ndarray) -> float:
@@ -190,11 +140,23 @@ def radial_unit_bend(aspect: float) -> float:
     """Mean length (diagonal units) of the non-affine part of the field (x, y)·ρ² over an image of this aspect,
     in centred coordinates of diagonal units: what k = 1 bends."""
     half_w, half_h = aspect / math.hypot(aspect, 1) / 2, 1 / math.hypot(aspect, 1) / 2
-    x, y = (a.ravel() for a in np.meshgrid(np.linspace(-half_w, half_w, GRID[0]), np.linspace(-half_h, half_h, GRID[1])))
+    columns, rows = np.linspace(-half_w, half_w, GRID[0]), np.linspace(-half_h, half_h, GRID[1])
+    x, y = (a.ravel() for a in np.meshgrid(columns, rows))
     rho2 = x * x + y * y
-    design = np.column_stack([np.ones_like(x), x, y])
-    rest = [w - design @ np.linalg.lstsq(design, w, rcond=None)[0] for w in (x * rho2, y * rho2)]
-    return float(np.hypot(*rest).mean())
+    rest = affine_rest(x, y, x * rho2, y * rho2)
+    return float(np.hypot(rest.rest_u, rest.rest_v).mean())
+
+
+def longest(points: EdgePoints, count: int) -> EdgePoints:
+    """The `count` longest segments of the evidence (all when fewer), renumbered longest first."""
+    if points.segments <= count:
+        return points
+    keep = np.argsort(-points.length, kind="stable")[:count]
+    new = np.full(points.segments, -1)
+    new[keep] = np.arange(len(keep))
+    mask = new[points.seg] >= 0
+    return EdgePoints(points.u[mask], points.v[mask], points.s[mask], points.e[mask], new[points.seg[mask]],
+                      points.normal[keep], points.centre[keep], points.length[keep], points.contrast[keep])
 
 
 def line_features(image: np.ndarray) -> np.ndarray:
@@ -205,22 +167,14 @@ def line_features(image: np.ndarray) -> np.ndarray:
     height, width = grey.shape
     if min(height, width) < SMALLEST_SIDE:
         return features
+    points = longest(edge_points(grey, edge_params(width, height)), MAX_SEGMENTS)
+    if points.segments == 0:
+        return features
     diagonal = math.hypot(width, height)
-    centre = np.array([(width - 1) / 2, (height - 1) / 2])
-    lines = segments(grey)
-    if len(lines) == 0:
-        return features
-    offsets = edge_offsets(grey.astype(np.float32), lines, centre)
-    bulge, rms, kept = _quadratic(offsets)
-    stands = kept.any(axis=1)
-    if not stands.any():
-        return features
-    length = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
-    distance = np.abs(np.einsum("sk,sk->s", offsets.normal, (lines[:, :2] + lines[:, 2:]) / 2 - centre))
-    half = length * (1 - 2 * np.maximum(END_MARGIN, END_MARGIN_PX / length)) / 2  # of the sampled span
-    lever = distance * half ** 2 / diagonal ** 2  # pixels of bulge per unit k
-    k = radial_k1(bulge[stands], rms[stands], lever[stands], distance[stands] / diagonal)
-    support = float(np.sum(lever[stands] ** 2 / (rms[stands] ** 2 + NOISE_FLOOR ** 2)))
+    seen = bulges(points, np.array([(width - 1) / 2, (height - 1) / 2]))
+    lever = seen.distance * seen.half ** 2 / diagonal ** 2  # pixels of bulge per unit k
+    k = radial_k1(seen.bulge, seen.rms, lever, seen.distance / diagonal)
+    support = float(np.sum(lever ** 2 / (seen.rms ** 2 + NOISE_FLOOR ** 2)))
     features[:] = [100 * abs(k) * radial_unit_bend(width / height), k, math.log1p(support)]
     return np.nan_to_num(features, nan=0.0, posinf=0.0, neginf=0.0)
 
@@ -286,7 +240,8 @@ class PlumbLine:
     def from_dict(cls, data: dict) -> "PlumbLine":
         """The detector to_dict wrote; refuses another format or feature list."""
         if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise AppdgenError(f"not a plumb-line detector (format {data.get('format') if isinstance(data, dict) else None!r}, expected {FORMAT})")
+            found = data.get("format") if isinstance(data, dict) else None
+            raise AppdgenError(f"not a plumb-line detector (format {found!r}, expected {FORMAT})")
         if list(data.get("features", [])) != list(FEATURE_NAMES):
             raise AppdgenError("plumb-line detector: its feature list differs from this version's")
         try:

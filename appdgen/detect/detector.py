@@ -1,8 +1,11 @@
 """The detector: how far a believed calibration is from the camera that took the frames, read from straight edges.
 
 Frames are rectified with the belief as `appdgen build` rectifies its reference; their line evidence (edges) is
-solved for the belief's field model (model) in one robust solve per frame or sequence (solve), and the solve maps
-to APPD, bend and parameter offsets under the sampling prior (posterior), tempered by the error model.
+solved for the belief's field model (model) in one robust solve per frame or sequence (solve); the error model
+weighs that evidence with what a real scene adds to it (errormodel), and the posterior over the sampling prior's
+library gives APPD, bend and parameter offsets with honest sds (posterior). Frames whose edges barely move (a
+hover) cannot tell a scene edge's own curvature from the lens's bend: they say so and, without a baseline, never
+flag.
 """
 from __future__ import annotations
 

@@ -65,12 +65,9 @@ def scene_terms(prior_var: np.ndarray, floor: float) -> tuple[np.ndarray, np.nda
     return phi, shape, phi[:, None] ** 2 * mean ** (1 - shape[:, None]) * prior_var[None] ** shape[:, None]
 
 
-def likelihood(est: Estimate, coefs: np.ndarray, prior_var: np.ndarray, floor: float, slope: float = 1.0
-               ) -> Likelihood:
-    """The reading's likelihood of each library draw under each scene term of the grid; slope: the reading's
-    response to the field (a baseline's; 1 without)."""
+def likelihood(est: Estimate, coefs: np.ndarray, prior_var: np.ndarray, floor: float) -> Likelihood:
+    """The reading's likelihood of each library draw under each scene term of the grid."""
     j, b = robust_information(est)
-    j, b = slope ** 2 * j, slope * b
     phi, shape, scene = scene_terms(prior_var, floor)
     log = []
     for d in scene:

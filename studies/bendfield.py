@@ -209,7 +209,7 @@ class Readers:
 
 def reading(r: Reading) -> dict:
     """The fields the tables use: appd and bend (None: abstained), p_above, verdict, segments."""
-    return {"appd": r.appd_pct, "bend": r.bend_pct, "p_above": r.p_above, "verdict": r.verdict,
+    return {"appd": r.appd_pct, "appd_sd": r.appd_sd_pct, "bend": r.bend_pct, "p_above": r.p_above, "verdict": r.verdict,
             "segments": r.segments}
 
 

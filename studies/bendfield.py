@@ -201,7 +201,7 @@ class Readers:
     def evidence(self, det: Detector, images: list[RawImage]) -> list[Evidence]:
         """Each frame's line evidence under the detector's belief."""
         out = []
-        for raw, image in zip(grey_frames(images), images):
+        for raw, image in zip(grey_frames(images), images, strict=False):
             out.append(det.evidence(raw, image.name))
             self.evidence_s.append(out[-1].seconds)
         return out
@@ -209,8 +209,8 @@ class Readers:
 
 def reading(r: Reading) -> dict:
     """The fields the tables use: appd and bend (None: abstained), p_above, verdict, segments."""
-    return {"appd": r.appd_pct, "appd_sd": r.appd_sd_pct, "bend": r.bend_pct, "p_above": r.p_above, "verdict": r.verdict,
-            "segments": r.segments}
+    return {"appd": r.appd_pct, "appd_sd": r.appd_sd_pct, "bend": r.bend_pct, "p_above": r.p_above,
+            "verdict": r.verdict, "segments": r.segments}
 
 
 def label_mean(scene: Scene, o: BendOptions) -> dict[str, float]:
@@ -355,7 +355,7 @@ def table(found: list[dict]) -> str:
     extra = [" pooled / mean | pooled ρ | pooled AUC | abstained (frames, seq.) |", "---:|---:|---:|---:|"]
     extra += [f" **{r['pooled']:.2f}** | {r['pooled_rho']:.2f} | {r['pooled_auc']:.2f} | {r['abstained']}/{r['n']}, "
               f"{r['pooled_abstained']}/{r['sequences']} |" for r in found]
-    return "\n".join(a + b for a, b in zip(comparison_table(found).splitlines(), extra))
+    return "\n".join(a + b for a, b in zip(comparison_table(found).splitlines(), extra, strict=False))
 
 
 def line(row: dict, length: int) -> str:
@@ -402,7 +402,7 @@ def run(o: BendOptions, log=lambda line: print(line, file=sys.stderr, flush=True
              "cpu_s": cpu_seconds() - cpu, "models": len(readers.model_s),
              "model_s": float(np.sum(readers.model_s)), "evidence_frames": len(readers.evidence_s),
              "evidence_s": float(np.sum(readers.evidence_s))}
-    stored = merged(out / "readings.json", {"means": means, "readings": readings})
+    merged(out / "readings.json", {"means": means, "readings": readings})
     summary = merged(out / "summary.json", {"rows": found, "streams": streams, "runs": [costs]})
     return {**summary, **costs}
 

@@ -85,7 +85,7 @@ def test_the_json_holds_every_frame_in_input_order_and_the_library_s_readings(st
                               "segments", "reason"}
     detector = Detector(load(street.calib))
     evidence = [detector.evidence(read_image(p, 1), p.name) for p in street.frames]
-    for entry, one in zip(frames, evidence):
+    for entry, one in zip(frames, evidence, strict=True):
         alone = detector.read([one]).to_dict()
         assert {k: entry[k] for k in ("appd_pct", "bend_pct", "segments", "verdict")} == \
                {k: alone[k] for k in ("appd_pct", "bend_pct", "segments", "verdict")}

@@ -144,7 +144,8 @@ def test_baseline_round_trip(truth: Detector, frames, tmp_path, camera: Calibrat
     assert np.linalg.norm(c_based - zero) < 0.35 * np.linalg.norm(c_plain - zero)
     assert based.appd_pct <= plain.appd_pct + 0.02
     # Another camera's belief is refused, in one line.
-    with pytest.raises(AppdgenError, match="baseline from frames 0-3: recorded for a 700x256 radtan camera, but the calibration is a 696x256"):
+    with pytest.raises(AppdgenError, match="baseline from frames 0-3: recorded for a 700x256 radtan camera, "
+                                           "but the calibration is a 696x256"):
         truth.read(ev, baseline=Baseline.record(camera.replace(width=700), None, back.grid_u, back.grid_v,
                                                 back.field, 4, 10, "frames 0-3"))
 

@@ -15,7 +15,8 @@ from appdgen.errors import AppdgenError
 
 _SCENARIO_TITLES = {
     "synthetic": "(a) synthetic: the reference camera's image\nrectified with the sampled calibration",
-    "physical": "(b) physical: the camera drifted to the sampled calibration,\nits image rectified with the reference one",
+    "physical": "(b) physical: the camera drifted to the sampled calibration,\n"
+                "its image rectified with the reference one",
 }
 
 
@@ -93,7 +94,7 @@ def plot_reproj(path: Path, study: ReprojectionStudy, title: str) -> None:
     fig = _figure(5.2 * len(names) + 0.8, 4.4)
     axes = np.atleast_1d(fig.subplots(1, len(names), squeeze=False)[0])
     focal = 100 * study.fractions[:, study.params.index("fx")]
-    for ax, name in zip(axes, names):
+    for ax, name in zip(axes, names, strict=False):
         error = study.reproj_px[name]
         dots = ax.scatter(study.appd_pct, error, c=focal, s=9, cmap="viridis", alpha=0.8)
         ax.set_title(f"{_SCENARIO_TITLES[name]}\nSpearman ρ = {spearman(study.appd_pct, error):.3f}, "
@@ -111,7 +112,7 @@ def plot_drift(path: Path, tables: Mapping[str, tuple[Sequence[str], np.ndarray,
     fig = _figure(5.0 * len(tables) + 0.8, 4.6)
     axes = fig.subplots(1, len(tables), squeeze=False)[0]
     top = max(float(m.max()) for _, m, _ in tables.values()) or 1.0
-    for ax, (camera, (labels, matrix, diagonal)) in zip(axes, tables.items()):
+    for ax, (camera, (labels, matrix, diagonal)) in zip(axes, tables.items(), strict=False):
         image = ax.imshow(matrix, cmap="magma_r", vmin=0.0, vmax=top)
         for (i, j), value in np.ndenumerate(matrix):
             ax.text(j, i, f"{value:.2f} px\n{value * 100 / diagonal:.3f} %", ha="center", va="center",

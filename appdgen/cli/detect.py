@@ -123,7 +123,8 @@ def read_frames(detector: Any, images: Sequence, sequence: int, baseline: Any, t
 
     report = Report()
     start = time.perf_counter()
-    evidence = (detector.evidence(raw, image.name) for raw, image in zip(iter_images(images, channels=1), images))
+    evidence = (detector.evidence(raw, image.name) for raw, image in zip(iter_images(images, channels=1), images,
+                                                                             strict=False))
     first = 0
     for group in groups(evidence, sequence):
         for one in group:
@@ -187,7 +188,8 @@ def text_report(report: Report, threshold: float, quiet: bool, rates: dict[str, 
     parts = []
     if not quiet:
         parts.append(format_table(["frame", *header], [row(f["image"], f) for f in report.frames]))
-    sequences = [[*row(frame_span(s["first"], s["count"]), s), most_moved(s["offsets"], rates)] for s in report.sequences]
+    sequences = [[*row(frame_span(s["first"], s["count"]), s), most_moved(s["offsets"], rates)]
+                 for s in report.sequences]
     parts.append(format_table(["frames", *header, "moved most (true - belief)"], sequences))
     return "\n\n".join(parts)
 

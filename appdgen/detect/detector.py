@@ -153,7 +153,8 @@ class Detector:
             return abstention(frames, est.segments, threshold_pct,
                               f"too few straight segments ({est.segments} < {MIN_SEGMENTS})")
         post = posterior(self.model, likelihood(est, self.model.coefs, self.model.var, SCENE_FLOOR), threshold_pct)
-        offsets = {n: (float(m), float(s)) for n, m, s in zip(self.model.names, post.offsets, post.offsets_sd)}
+        offsets = {n: (float(m), float(s)) for n, m, s in zip(self.model.names, post.offsets, post.offsets_sd,
+                                                                           strict=True)}
         hover = frames > 1 and moved < HOVER_PX
         reason = (HOVER if baseline is not None else f"{HOVER} (no flag without a baseline)") if hover else None
         return Reading(frames, est.segments, post.appd, post.appd_sd, post.bend, post.bend_sd, post.p_above,

@@ -149,7 +149,8 @@ def join_lines(lines: np.ndarray, prm: EdgeParams) -> list[tuple[np.ndarray, np.
         lo, hi = np.minimum(s0, s1), np.maximum(s0, s1)
         if hi.max() - lo.min() < prm.min_len:
             continue
-        s = np.concatenate([np.arange(a + prm.end_margin, b - prm.end_margin + 1e-9, prm.step) for a, b in zip(lo, hi)])
+        s = np.concatenate([np.arange(a + prm.end_margin, b - prm.end_margin + 1e-9, prm.step) for a, b in
+                        zip(lo, hi, strict=True)])
         out.append((p0, ti, np.unique(np.round(s / prm.step) * prm.step)))
     return out
 

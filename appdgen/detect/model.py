@@ -4,11 +4,12 @@ bend as the belief-rectified image shows it, compressed to a PCA basis; cached o
 The prior is the sampling one read the way a miscalibration arises: the belief is a sampler draw around the truth
 (Θb = Θt + δ, as `appdgen build` perturbs its reference), so hypothesis i is Θt = Θb − δi with δi the offset of
 Sampler(belief).draw(LIBRARY_SEED, i) (the ranges are asymmetric, focal −5 %…+20 %: taking the draw itself as the
-truth would put the prior's mass on the wrong side). For a hypothesis Θt the image rectified with the belief Θb shows at output pixel p the ray of the true-rectification pixel
-W(p) = K̂t·undistort_t(M̂b(p)); its non-affine rest in belief output pixels (geometry.bend.output_rest) is the
-field f with p_i + f(p_i) collinear along every straight scene edge. The field is sampled on a grid spanning the
-whole raw-size output image, and every draw keeps its labels: APPD and bend (% of the raw diagonal, as a build
-labels the belief-rectified sample of a reference Θt) and its parameter offsets (true − belief, parameter units).
+truth would put the prior's mass on the wrong side). For a hypothesis Θt the image rectified with the belief Θb
+shows at output pixel p the ray of the true-rectification pixel W(p) = K̂t·undistort_t(M̂b(p)); its non-affine rest
+in belief output pixels (geometry.bend.output_rest) is the field f with p_i + f(p_i) collinear along every straight
+scene edge. The field is sampled on a grid spanning the whole raw-size output image, and every draw keeps its
+labels: APPD and bend (% of the raw diagonal, as a build labels the belief-rectified sample of a reference Θt) and
+its parameter offsets (true − belief, parameter units).
 """
 from __future__ import annotations
 
@@ -155,7 +156,7 @@ def build_model(belief: Calibration, max_fov: float | None = None, draws: int | 
             offsets.append(offset)
             continue
         try:
-            true = belief.replace(**dict(zip(belief.param_names, (base + offset).tolist())))
+            true = belief.replace(**dict(zip(belief.param_names, (base + offset).tolist(), strict=True)))
             crop_t = valid_region(true, max_fov=max_fov)
             field = output_rest(true, crop_t, belief, crop_b, uu, vv).reshape(uu.shape + (2,))
             wf = warp_field(true, crop_t, belief, crop_b, columns=LABEL_COLUMNS)

@@ -47,7 +47,8 @@ def pool(designs: list[Design], tracks: list[np.ndarray] | None = None) -> Desig
         track = np.concatenate(tracks)
     return Design(np.concatenate([d.y for d in designs]), np.vstack([d.x for d in designs]),
                   np.concatenate([d.s for d in designs]),
-                  np.concatenate([d.seg + o for d, o in zip(designs, offsets)]), int(offsets[-1]), track)
+                  np.concatenate([d.seg + o for d, o in zip(designs, offsets[:-1], strict=True)]),
+                  int(offsets[-1]), track)
 
 
 @dataclass(frozen=True)

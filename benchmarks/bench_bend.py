@@ -14,8 +14,8 @@ import time
 import numpy as np
 
 from appdgen.calib.defaults import default_calibration
-from appdgen.dataset.worker import warp_columns
 from appdgen.dataset.images import encode_image
+from appdgen.dataset.worker import warp_columns
 from appdgen.geometry.remap import remap_image
 from appdgen.sampling.options import SamplingOptions
 

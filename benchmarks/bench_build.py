@@ -36,9 +36,8 @@ import numpy as np
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.formats import load
 from appdgen.dataset.build import build
+from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS, LEGACY_ENCODER, LIBDEFLATE_LEVEL, sub_filtered_rows
 from appdgen.dataset.plan import BuildConfig
-from appdgen.dataset.encoders import (DEFAULT_ENCODER, ENCODERS, LEGACY_ENCODER, LIBDEFLATE_LEVEL,
-                                      sub_filtered_rows)
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
 from appdgen.sources.files import list_images

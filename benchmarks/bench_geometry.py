@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 
 from appdgen import lens
-from appdgen.geometry.appd import appd_px
 from appdgen.calib.calibration import Calibration
+from appdgen.geometry.appd import appd_px
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
 

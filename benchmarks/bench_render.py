@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -23,6 +23,7 @@ from appdgen.calib.defaults import default_calibration
 from appdgen.geometry.crop import valid_region
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
 from train.loop import adam, train_step  # noqa: E402
 from train.model import AppdNet, ModelConfig  # noqa: E402

@@ -22,8 +22,8 @@ from pathlib import Path
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.defaults import DEFAULT_CALIB_PATH
 from appdgen.calib.formats import load
-from appdgen.util.distribute import run_unordered
 from appdgen.synth import CAR, frame_chunks, write_frames
+from appdgen.util.distribute import run_unordered
 
 
 def _timed_chunk(indices: range, **kw) -> tuple[int, float]:

@@ -1,6 +1,6 @@
 """Images/s the shard loader delivers vs images/s a training step consumes, measured in one run.
 
-    python benchmarks/bench_train.py                      # synthetic 348x128 PNG shards in a temp folder
+    python benchmarks/bench_train.py                      # a 348x128 build of synthetic streets in a temp folder
     python benchmarks/bench_train.py --shards demo/shards # real shards
 
 If the loader's rate is well above the step's, training is compute-bound and more --workers won't help.
@@ -16,10 +16,9 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # its synthetic shards
-from synthetic_shards import write_shards  # noqa: E402
-from train import runtime  # noqa: E402
+from appdgen.cli import main as appdgen  # noqa: E402
 from appdgen.dataset.shardset import open_shards  # noqa: E402
+from train import runtime  # noqa: E402
 from train.data import Selection, StreamSpec, make_loader  # noqa: E402
 from train.loop import adam, train_step  # noqa: E402
 from train.model import AppdNet, ModelConfig  # noqa: E402
@@ -39,6 +38,17 @@ def parse() -> argparse.Namespace:
     return p.parse_args()
 
 
+def synthetic_build(out: Path, frames: int = 16, samples: int = 256) -> Path:
+    """A 348x128 build of synthetic streets (appdgen synth, appdgen build), all in its train split."""
+    raw = out / "raw" / "train"  # split by parent folder: every sample in "train"
+    appdgen(["synth", "--frames", str(frames), "--scale", "0.25", "--seed", "1", "--out", str(raw), "--quiet"],
+            standalone_mode=False)
+    appdgen(["build", "--calib", str(raw / "calibration.yaml"), "--images", str(raw.parent), "--split-by", "parent",
+             "--samples", str(samples), "--shard-size", "64", "--out", str(out / "shards"), "--quiet"],
+            standalone_mode=False)
+    return out / "shards"
+
+
 def rate(fn, n: int, images: int) -> float:
     """Images per second over n calls of fn, each handling `images` images."""
     t = time.perf_counter()
@@ -54,8 +64,7 @@ def main() -> None:
     runtime.setup_threads(device)
     dtype = runtime.autocast_dtype(device, args.precision)
     with tempfile.TemporaryDirectory() as tmp:
-        root = args.shards or write_shards(Path(tmp) / "shards", n=256, size=(348, 128), per_shard=64,
-                                           splits=(("train", 1),))
+        root = args.shards or synthetic_build(Path(tmp))
         ss = open_shards(root)
         w, h = ss.size
         spec = StreamSpec(ss.for_split(args.split), Selection(args.split), (w, h), loop=True, shuffle=True)

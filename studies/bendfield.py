@@ -39,8 +39,7 @@ import numpy as np
 from appdgen.analysis.studies import spearman
 from appdgen.detect import Baseline, Detector, Evidence, Reading
 from appdgen.sources.frames import RawImage
-from studies.detector import (ARMS, AXIS_SEEDS, INTERP, TEST_SYNTH, DetectorOptions, listed, reference,
-                              synth_all)
+from studies.detector import ARMS, AXIS_SEEDS, INTERP, TEST_SYNTH, DetectorOptions, listed, reference, synth_all
 from studies.detector import table as comparison_table
 from train.scoring import LABELS, SEQUENCE_SEED, THRESHOLD, auc, sequence_metrics
 

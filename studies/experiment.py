@@ -122,8 +122,8 @@ ONLINE_INTERP = "cubic"
 def build_samples(opts: ExperimentOptions, raw: Path, calib_path: Path, shards: Path, jobs: int) -> dict:
     """One build over raw/ (split = folder; online: the test frames only), per_frame(opts) samples per frame;
     returns build.json."""
-    from appdgen.dataset.build import BuildConfig, build
     from appdgen.calib.formats import load
+    from appdgen.dataset.build import BuildConfig, build
     from appdgen.sources.files import list_images
 
     images = [i for i in list_images(str(raw), "parent") if not opts.online or i.split == "test"]
@@ -140,7 +140,6 @@ def build_samples(opts: ExperimentOptions, raw: Path, calib_path: Path, shards: 
 def run(opts: ExperimentOptions) -> dict:
     """All stages; returns the test metrics, the fit summary and each stage's seconds."""
     from appdgen.util.distribute import default_jobs
-
     from train import runtime
     from train.evaluate import evaluate
     from train.fit import FitOptions, fit
@@ -205,7 +204,8 @@ def summary_line(r: dict) -> str:
 def detector_options(opts: ExperimentOptions, tiny_sizes: bool = False):
     """The detector comparison (studies.detector) at this experiment's sizes: --frames training streets, --samples
     images per arm, --test-frames split into sequences of 10; TINY's sizes with `tiny_sizes`."""
-    from studies.detector import TINY as DETECTOR_TINY, DetectorOptions
+    from studies.detector import TINY as DETECTOR_TINY
+    from studies.detector import DetectorOptions
 
     o = DetectorOptions(out=opts.out, frames=opts.frames, sequences=max(1, opts.test_frames // 10),
                         images=opts.samples, batch=opts.batch, seed=opts.seed, device=opts.device,
@@ -215,8 +215,8 @@ def detector_options(opts: ExperimentOptions, tiny_sizes: bool = False):
 
 def run_detector(o) -> dict:
     """Every arm of the detector comparison (in-process, one stream after the other); returns its summary."""
-    from train import runtime
     from studies.detector import run as run_arms
+    from train import runtime
 
     device = runtime.pick_device(o.device)
     return run_arms(replace(o, device=device.type), parallel=device.type == "cpu")

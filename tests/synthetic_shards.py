@@ -10,8 +10,7 @@ import numpy as np
 from appdgen.calib.calibration import Calibration
 from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS
 from appdgen.dataset.images import encode_image
-from appdgen.dataset.layout import (FORMATS, STAGES, ShardStats, bend_columns, crop_columns, sample_key,
-                                    shard_name)
+from appdgen.dataset.layout import FORMATS, STAGES, ShardStats, bend_columns, crop_columns, sample_key, shard_name
 from appdgen.dataset.shards import BuildWriter
 
 INTRINSICS = {"fx": 100.0, "fy": 100.0, "cx": 64.0, "cy": 64.0, "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "k3": 0.0}

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import KITTI_2011_09_26
+from test_geometry import lens_pixels
 
 from appdgen.analysis.studies import (
     PAPER_RANGES,
@@ -26,16 +28,14 @@ from appdgen.analysis.studies import (
     synthetic_error,
     to_output,
 )
-from appdgen.geometry.appd import appd_px
 from appdgen.calib.calibration import Calibration
+from appdgen.calib.formats import save
 from appdgen.cli import main
 from appdgen.cli.analyses import file_labels
-from appdgen.geometry.distortion import distort_to_pixels
 from appdgen.errors import AppdgenError
-from appdgen.calib.formats import save
+from appdgen.geometry.appd import appd_px
+from appdgen.geometry.distortion import distort_to_pixels
 from appdgen.geometry.maps import rectify
-from conftest import KITTI_2011_09_26
-from test_geometry import lens_pixels
 
 SMALL = (348, 128)  # a quarter of KITTI's raw size per side: fast, and APPD % within 1e-5 of the raw size's
 PINHOLE = Calibration(1392, 512, 900.0, 900.0, 696.0, 256.0)  # no distortion

@@ -1,4 +1,4 @@
-"""The learnability diagnostics in benchmarks/: the affine/non-affine split obeys its laws."""
+"""The benchmarks and the visibility study: the affine/non-affine split obeys its laws, the build benchmark runs."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,11 +7,10 @@ from appdgen.calib.defaults import default_calibration
 from appdgen.geometry.maps import rectify
 from appdgen.synth import scale_calibration
 from helpers import load_script
+from studies import visibility
 
 KITTI_02_QUARTER = scale_calibration(default_calibration("02"), 0.25)  # the demo's camera, 348x128
 
-
-visibility = load_script("visibility")
 
 
 def test_affine_displacement_leaves_nothing_and_a_bend_is_measured():

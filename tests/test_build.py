@@ -14,16 +14,28 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from appdgen.geometry.appd import appd, px_to_pct
-from appdgen.util.atomic import temporary_target
 from appdgen.calib.calibration import PARAMS, Calibration
+from appdgen.dataset.layout import BEND_COLUMNS, CROP_COLUMNS, STAGES, member_record
+from appdgen.geometry.appd import appd, px_to_pct
 from appdgen.geometry.bend import split_warp
 from appdgen.geometry.crop import Crop, valid_region
-from appdgen.dataset.layout import BEND_COLUMNS, CROP_COLUMNS, STAGES, member_record
 from appdgen.geometry.maps import rectify
 from appdgen.sampling.sampler import Sampler
-from helpers import (Setup, assert_killed_build_sound, assert_one_line_error, assert_same_build, assert_shard_complete,
-                     kill_group, kitti_text, raw_image, run_cli, spawn_cli, tree_digest, write_png)
+from appdgen.util.atomic import temporary_target
+from helpers import (
+    Setup,
+    assert_killed_build_sound,
+    assert_one_line_error,
+    assert_same_build,
+    assert_shard_complete,
+    kill_group,
+    kitti_text,
+    raw_image,
+    run_cli,
+    spawn_cli,
+    tree_digest,
+    write_png,
+)
 
 SIZE = (87, 32)  # output size of the sampler checks: KITTI's aspect exactly
 

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from appdgen.geometry.appd import appd
 from appdgen.calib.calibration import Calibration
-from appdgen.cli import main
-from appdgen.geometry.distortion import distort_to_pixels
-from appdgen.errors import AppdgenError
 from appdgen.calib.formats import save
+from appdgen.cli import main
+from appdgen.errors import AppdgenError
+from appdgen.geometry.appd import appd
+from appdgen.geometry.distortion import distort_to_pixels
 from appdgen.geometry.maps import rectify
 
 SMALL = (160, 120)

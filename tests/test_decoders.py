@@ -12,9 +12,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from appdgen.errors import AppdgenError
 from appdgen.sources.decode import decode_bytes
 from appdgen.sources.inputs import iter_images, resolve_inputs
-from appdgen.errors import AppdgenError
 from helpers import assert_one_line_error, compressed_bag, kitti_text, raw_image, run_cli, write_png
 
 START_NS = 1_600_000_000_000_000_000

@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import pytest
+from conftest import KITTI_2011_09_26
 
 from appdgen.calib.defaults import DEFAULT_CALIB_PATH, default_calibration
 from appdgen.errors import AppdgenError
-from conftest import KITTI_2011_09_26
 
 
 @pytest.mark.parametrize("camera", sorted(KITTI_2011_09_26))

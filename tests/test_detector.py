@@ -14,17 +14,29 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from appdgen.analysis.studies import spearman  # noqa: E402
-from appdgen.geometry.appd import px_to_pct  # noqa: E402
 from appdgen.calib.defaults import default_calibration  # noqa: E402
+from appdgen.geometry.appd import px_to_pct  # noqa: E402
 from appdgen.sampling.options import SamplingOptions  # noqa: E402
 from appdgen.sampling.sampler import target_px  # noqa: E402
 from appdgen.synth import scale_calibration  # noqa: E402
 from helpers import raw_image  # noqa: E402
-from studies.detector import (ARMS, FIELD_COLUMNS, PAIR_LABELS, TUNE_SEED, Arm, DetectorOptions, Stream,  # noqa: E402
-                              axis_pairs, floor_arms, real_frames, tune_frames)
+from studies.detector import (  # noqa: E402
+    ARMS,
+    FIELD_COLUMNS,
+    PAIR_LABELS,
+    TUNE_SEED,
+    Arm,
+    DetectorOptions,
+    Stream,
+    axis_pairs,
+    floor_arms,
+    real_frames,
+    tune_frames,
+)
 from studies.experiment import main  # noqa: E402
-from train.scoring import auc, sequence_metrics as metrics  # noqa: E402
 from train.online.recipe import PairRecipe  # noqa: E402
+from train.scoring import auc  # noqa: E402
+from train.scoring import sequence_metrics as metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 

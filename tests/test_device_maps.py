@@ -13,12 +13,12 @@ import textwrap
 
 import numpy as np
 import pytest
+from test_lens import CAMERAS
 
 from appdgen.calib.calibration import Calibration
 from appdgen.errors import AppdgenError
 from appdgen.geometry.crop import Crop, valid_region
 from appdgen.geometry.maps import raw_positions, raw_positions_batch, rectify
-from test_lens import CAMERAS
 
 torch = pytest.importorskip("torch")
 

@@ -4,10 +4,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from conftest import KITTI_2011_09_26
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from appdgen.calib.calibration import Calibration
+from appdgen.errors import AppdgenError
 from appdgen.geometry.distortion import (
     distort_normalized,
     distort_to_pixels,
@@ -15,8 +17,6 @@ from appdgen.geometry.distortion import (
     radial_fold_radius,
     undistort_pixels,
 )
-from appdgen.errors import AppdgenError
-from conftest import KITTI_2011_09_26
 
 # KITTI raw 2011_09_26, camera 02 (published calib_cam_to_cam.txt).
 

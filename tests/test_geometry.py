@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from appdgen.geometry.appd import appd, appd_px
-from appdgen.calib.calibration import Calibration
-from appdgen.geometry.crop import check_output_size, search_region, slide_box, valid_region
-from appdgen.errors import AppdgenError
-from appdgen.geometry.maps import rectify
 from conftest import KITTI_2011_09_26, PAPER_RANGES
+
+from appdgen.calib.calibration import Calibration
+from appdgen.errors import AppdgenError
+from appdgen.geometry.appd import appd, appd_px
+from appdgen.geometry.crop import check_output_size, search_region, slide_box, valid_region
+from appdgen.geometry.maps import rectify
 
 
 def lens_pixels(x: np.ndarray, y: np.ndarray, c: Calibration) -> tuple[np.ndarray, np.ndarray]:

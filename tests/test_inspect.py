@@ -14,18 +14,18 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
+from conftest import KITTI_2011_09_26
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from appdgen.dataset.build import build
-from appdgen.dataset.plan import BuildConfig
-from appdgen.cli import main
-from appdgen.dataset.inspect import histogram, sheet_layout, spread
-from appdgen.dataset.verify import verify
 from appdgen.calib.calibration import PARAMS
+from appdgen.cli import main
+from appdgen.dataset.build import build
+from appdgen.dataset.inspect import histogram, sheet_layout, spread
 from appdgen.dataset.layout import label_schema
+from appdgen.dataset.plan import BuildConfig
+from appdgen.dataset.verify import verify
 from appdgen.sources.frames import RawImage
-from conftest import KITTI_2011_09_26
 
 SAMPLES, SHARD_SIZE, SIZE = 12, 4, (174, 64)  # 3 shards; 174x64 keeps KITTI's 1392:512 aspect
 

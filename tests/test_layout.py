@@ -190,7 +190,6 @@ def test_the_package_list_installs_appdgen_alone() -> None:
     # train/ and studies/ are folders of the repository, run from its root (python -m train): nothing installs a
     # generic top-level `train` into site-packages (issue 31).
     import tomllib
-
     from setuptools import find_packages
 
     find = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]

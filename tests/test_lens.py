@@ -9,13 +9,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from conftest import KITTI_2011_09_26
 
 from appdgen import lens
 from appdgen.calib.calibration import Calibration
-from appdgen.geometry.distortion import pixel_rays, project, undistort_pixels
 from appdgen.errors import AppdgenError
+from appdgen.geometry.distortion import pixel_rays, project, undistort_pixels
 from appdgen.lens import numerics
-from conftest import KITTI_2011_09_26
 
 # Published values: the 2880x1860 ROS rational_polynomial file, TUM VI cam0 (Kalibr pinhole-equi), EuRoC cam0
 # (Basalt eucm); DS values are Usenko et al.'s fit of an EuRoC-like lens, thin prism terms made up and small.

@@ -9,12 +9,12 @@ import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import ROOT
 
 from appdgen.cli import main
 from appdgen.errors import AppdgenError
-from appdgen.sources.manifest import kitti_manifests, list_line, read_split_file, split_of, write_list
 from appdgen.sources.files import list_images
-from conftest import ROOT
+from appdgen.sources.manifest import kitti_manifests, list_line, read_split_file, split_of, write_list
 
 SPLIT_FILE = ROOT / "manifests" / "kitti_raw_split.txt"
 # A 4x2 camera: small enough for 4x2 fake images, valid for the KITTI reader.

@@ -8,7 +8,6 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from synthetic_shards import write_shards  # noqa: E402
-
 from train.checkpoint import build_model, load  # noqa: E402
 from train.cli import main  # noqa: E402
 from train.errors import TrainError  # noqa: E402

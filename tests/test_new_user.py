@@ -14,18 +14,18 @@ import numpy as np
 import pytest
 
 import appdgen.sources.raw
-from appdgen.dataset.plan import BuildConfig, default_shard_size
 from appdgen.calib.calibration import Calibration
 from appdgen.cli import main
-from appdgen.util.distribute import BACKENDS, resolve_jobs
-from appdgen.errors import AppdgenError
 from appdgen.dataset.layout import FORMATS, STAGES, ShardStats
+from appdgen.dataset.plan import BuildConfig, default_shard_size
+from appdgen.errors import AppdgenError
 from appdgen.geometry.remap import INTERPOLATIONS
 from appdgen.sampling.reach import UnreachableError
 from appdgen.sampling.sampler import Sampler
 from appdgen.sources.files import SPLIT_BY, list_images
 from appdgen.sources.frames import RawImage
 from appdgen.sources.raw import read_raw
+from appdgen.util.distribute import BACKENDS, resolve_jobs
 from helpers import Setup, assert_one_line_error, assert_same_build, kitti_text, run_cli, run_with_full_disk
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -197,7 +197,7 @@ LAYOUT = ROOT / "appdgen" / "dataset"
 
 def test_output_names_are_written_in_one_module_only() -> None:
     # The generator, the trainer and the benchmarks: each output name is spelled in layout.py alone.
-    sources = [p for folder in ("appdgen", "train", "benchmarks") for p in (ROOT / folder).rglob("*.py")]
+    sources = [p for folder in ("appdgen", "train", "benchmarks", "studies") for p in (ROOT / folder).rglob("*.py")]
     assert LAYOUT / "layout.py" in sources and len(sources) > 50
     for literal, owner in OWNED.items():
         users = sorted(p.relative_to(LAYOUT).as_posix() if p.parent == LAYOUT else p.relative_to(ROOT).as_posix()
@@ -223,7 +223,7 @@ def test_shard_stats_are_a_typed_record() -> None:
 def test_architecture_names_the_modules_that_exist() -> None:
     text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
     named = set(re.findall(r"`?\b([a-z_]+)\.py\b", text)) | set(re.findall(r"(?<![.\w])([a-z_]+)/`", text))
-    packages = [ROOT / "appdgen", ROOT / "train", ROOT / "benchmarks", ROOT / "tests"]
+    packages = [ROOT / "appdgen", ROOT / "train", ROOT / "benchmarks", ROOT / "studies", ROOT / "tests"]
     missing = [n for n in sorted(named) if not any(list(p.rglob(f"{n}.py")) for p in packages)
                and not any((root / n).is_dir() for root in (ROOT / "appdgen", ROOT / "train", ROOT))]
     assert not missing, missing

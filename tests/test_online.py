@@ -16,6 +16,7 @@ torch = pytest.importorskip("torch")
 from appdgen.calib.calibration import Calibration  # noqa: E402
 from appdgen.geometry.crop import Crop  # noqa: E402
 from appdgen.geometry.maps import rectify  # noqa: E402
+from appdgen.sources.frames import RawImage  # noqa: E402
 from helpers import Setup, kitti_text, raw_image, write_png  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train.cli import main  # noqa: E402
@@ -23,7 +24,6 @@ from train.holdout import frame_sides  # noqa: E402
 from train.online.options import OnlineOptions  # noqa: E402
 from train.online.pairs import PairSpec, pair_loader  # noqa: E402
 from train.online.recipe import decode_frames, open_recipe  # noqa: E402
-from appdgen.sources.frames import RawImage  # noqa: E402
 
 NET = "348x128"  # the smallest KITTI-aspect size the paper's CNN takes (7 max-pools: 128 px)
 DRIVES = ("2011_09_26_drive_0001", "2011_09_26_drive_0002", "2011_09_26_drive_0005")
@@ -210,10 +210,10 @@ def test_online_vs_offline_benchmark_prints_its_table(tmp_path):
     import subprocess
     import sys
 
-    script = Path(__file__).parents[1] / "benchmarks" / "online_vs_offline.py"
-    result = subprocess.run([sys.executable, str(script), "--frames", "6", "--per-frame", "2", "--test-frames", "3",
+    root = Path(__file__).parents[1]
+    result = subprocess.run([sys.executable, "-m", "studies.online_vs_offline", "--frames", "6", "--per-frame", "2", "--test-frames", "3",
                              "--minutes", "1", "--batch", "8", "--out", str(tmp_path / "ovo")],
-                            capture_output=True, text=True, timeout=600)
+                            capture_output=True, text=True, timeout=600, cwd=root)
     assert result.returncode == 0, result.stderr
     rows = [line for line in result.stdout.splitlines() if line.startswith("| 1 |")]
     assert len(rows) == 1 and rows[0].count("|") == 6
@@ -244,8 +244,8 @@ def test_online_fit_on_bend_records_it_and_resume_keeps_it(frames, tmp_path, cap
 
 
 def test_evaluate_frames_scores_sequences_of_unseen_frames_under_one_draw_each(online_run, frames, tmp_path, capsys):
-    from train.scoring import SEQUENCE_SEED
     from train.inference import to_input
+    from train.scoring import SEQUENCE_SEED
 
     calib, images = frames
     main(["evaluate", "--ckpt", str(online_run / "last.pt"), "--frames", str(images), "--length", "2",

@@ -9,7 +9,6 @@ import sys
 import cv2
 import numpy as np
 import pytest
-from helpers import load_script
 
 from appdgen.calib.defaults import default_calibration
 from appdgen.detect.edges import EdgePoints
@@ -21,6 +20,7 @@ from appdgen.geometry.distortion import undistort_pixels
 from appdgen.geometry.maps import rectify
 from appdgen.geometry.remap import remap_image
 from appdgen.synth import scale_calibration
+from studies import plumbline as floor_benchmark
 from train.plumbline import (
     ALPHAS,
     FEATURE_NAMES,
@@ -32,7 +32,6 @@ from train.plumbline import (
     line_features,
 )
 
-floor_benchmark = load_script("plumbline")
 HALF = scale_calibration(default_calibration(), 0.5)  # KITTI at 696×256: lines bend by a pixel, render is quick
 K1 = FEATURE_NAMES.index("radial_k1")
 BEND = FEATURE_NAMES.index("radial_bend")

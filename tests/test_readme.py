@@ -214,3 +214,17 @@ def test_python_m_appdgen_runs_the_command_line():
     result = subprocess.run([sys.executable, "-m", "appdgen", "build", "--help"], env=this_checkout(),
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 0 and "--calib" in result.stdout, result.stderr
+
+
+def test_every_make_target_is_in_the_cli_pages_table() -> None:
+    targets: set[str] = set()
+    for makefile in ("Makefile", "studies.mk"):
+        text = (ROOT / makefile).read_text(encoding="utf-8").replace("\\\n", " ")
+        targets |= {name for line in re.findall(r"^\.PHONY:(.*)$", text, re.M) for name in line.split()}
+    assert {"demo", "test", "train", "real-sets", "detect-study"} <= targets
+    table = (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
+    listed = set(re.findall(r"`make ([a-z-]+)`", table))
+    assert targets - listed == set(), targets - listed
+    rules = {m for makefile in ("Makefile", "studies.mk")
+             for m in re.findall(r"^([a-z][a-z-]*):", (ROOT / makefile).read_text(encoding="utf-8"), re.M)}
+    assert rules - targets == set(), rules - targets  # every target is declared phony, so none is left out above

@@ -16,9 +16,20 @@ import pytest
 pytest.importorskip("rosbags")
 pytest.importorskip("av")
 
-from appdgen.synth.recording import START_NS, FRAME_PERIOD_NS, write_bag, write_video
-from helpers import (assert_one_line_error, assert_same_build, compressed_bag, kill_group, kitti_text, raw_image,
-                     run_cli, run_with_full_disk, shard_members, spawn_cli, write_png)
+from appdgen.synth.recording import FRAME_PERIOD_NS, START_NS, write_bag, write_video
+from helpers import (
+    assert_one_line_error,
+    assert_same_build,
+    compressed_bag,
+    kill_group,
+    kitti_text,
+    raw_image,
+    run_cli,
+    run_with_full_disk,
+    shard_members,
+    spawn_cli,
+    write_png,
+)
 
 FRAMES = 6
 

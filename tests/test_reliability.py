@@ -18,8 +18,18 @@ from appdgen.calib.calibration import PARAMS
 from appdgen.errors import AppdgenError
 from appdgen.sampling.ranges import parse_ranges
 from appdgen.sources.files import SPLIT_BY, _read_list, list_images
-from helpers import (Setup, assert_killed_build_sound, assert_one_line_error, assert_same_build, assert_shard_complete,
-                     kill_group, run_cli, run_with_full_disk, spawn_cli, tree_digest)
+from helpers import (
+    Setup,
+    assert_killed_build_sound,
+    assert_one_line_error,
+    assert_same_build,
+    assert_shard_complete,
+    kill_group,
+    run_cli,
+    run_with_full_disk,
+    spawn_cli,
+    tree_digest,
+)
 
 BAD = Path(__file__).parent / "data" / "bad"
 BASE = {"--calib": "ok_calib.txt", "--images": "ok_images", "--samples": "4", "--shard-size": "2", "--size": "87x32",

@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 
 from appdgen import lens
-from appdgen.geometry.appd import appd
 from appdgen.calib.calibration import Calibration
-from appdgen.util.distribute import run_unordered
 from appdgen.errors import AppdgenError
+from appdgen.geometry.appd import appd
 from appdgen.geometry.crop import check_max_fov
+from appdgen.sampling.estimate import Estimate
 from appdgen.sampling.ranges import PAPER_RANGES, ZERO_RANGES, Range, default_ranges, paper_ranges, parse_ranges
 from appdgen.sampling.reach import UnreachableError
 from appdgen.sampling.sampler import Sampler
-from appdgen.sampling.estimate import Estimate
 from appdgen.sampling.search import MAX_EVALUATIONS, solve_ray
+from appdgen.util.distribute import run_unordered
 from helpers import sampler_draws, scaled
 
 SIZE = (87, 32)

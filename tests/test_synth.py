@@ -6,12 +6,13 @@ import dataclasses
 import cv2
 import numpy as np
 import pytest
+from conftest import KITTI_2011_09_26
 
 from appdgen import lens
 from appdgen.calib.calibration import Calibration
-from appdgen.geometry.distortion import pixel_rays
-from appdgen.errors import AppdgenError
 from appdgen.calib.formats import load
+from appdgen.errors import AppdgenError
+from appdgen.geometry.distortion import pixel_rays
 from appdgen.synth import (
     _lens_maps,
     frame_rng,
@@ -20,9 +21,8 @@ from appdgen.synth import (
     scale_calibration,
     synthesize,
 )
-from appdgen.synth.street import CAR, LOOSE, Street, random_street
 from appdgen.synth.cubemap import CubeMaps
-from conftest import KITTI_2011_09_26
+from appdgen.synth.street import CAR, LOOSE, Street, random_street
 from helpers import run_cli
 
 #: TUM VI cam0 as Kalibr's pinhole-equi (Kannala–Brandt) calibration publishes it: 512x512, ~190° across.

@@ -15,10 +15,10 @@ import pytest
 torch = pytest.importorskip("torch")
 
 import cv2  # noqa: E402
-from synthetic_shards import write_shards  # noqa: E402
 
 from appdgen.dataset.shardset import open_shards, read_labels  # noqa: E402
 from appdgen.errors import AppdgenError  # noqa: E402
+from synthetic_shards import write_shards  # noqa: E402
 from train.checkpoint import check_plain  # noqa: E402
 from train.cli import main  # noqa: E402
 from train.data import Selection, ShardStream, StreamSpec, count_selected, make_loader, shard_mode_ok  # noqa: E402

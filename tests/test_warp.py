@@ -12,9 +12,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from test_lens import CAMERAS
 
 from appdgen.geometry.maps import rectify
-from test_lens import CAMERAS
 
 torch = pytest.importorskip("torch")
 from train.errors import TrainError  # noqa: E402  (after the torch check: train needs torch)

@@ -8,6 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from appdgen.analysis.studies import spearman  # ties share their mean rank; nan when a side is constant
+from appdgen.detect import DEFAULT_THRESHOLD_PCT
 from appdgen.geometry.appd import px_to_pct
 from appdgen.sampling.sampler import target_px
 
@@ -15,8 +16,8 @@ N_BINS = 10
 #: Draw seed of the test sequences: sequence k of any test set is under draw (SEQUENCE_SEED, k), so that every
 #: scorer (evaluate --frames, the detector comparison's synthetic axes) tests on the same miscalibrations.
 SEQUENCE_SEED = 7003
-#: % APPD: the detection threshold whose AUC the sequence metrics report.
-THRESHOLD = 0.5
+#: % APPD: the detection threshold whose AUC the sequence metrics report (the detector's, owned by appdgen.detect).
+THRESHOLD = DEFAULT_THRESHOLD_PCT
 #: A label: its value of a draw under a recipe (train.online.recipe.PairRecipe), % of the raw diagonal.
 Label = Callable[[object, object], object]
 

@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 
 from appdgen.analysis.studies import ReprojectionStudy, spearman
-from appdgen.util.atomic import write_file
 from appdgen.calib.calibration import FOCAL, PRINCIPAL
 from appdgen.errors import AppdgenError
+from appdgen.util.atomic import write_file
 
 _SCENARIO_TITLES = {
     "synthetic": "(a) synthetic: the reference camera's image\nrectified with the sampled calibration",

@@ -13,13 +13,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from appdgen.geometry.appd import appd_px, px_to_pct
 from appdgen.calib.calibration import DISTORTION, Calibration
+from appdgen.errors import AppdgenError
+from appdgen.geometry.appd import appd_px, px_to_pct
 from appdgen.geometry.crop import Crop, valid_region
 from appdgen.geometry.distortion import distort_to_pixels, undistort_pixels
-from appdgen.errors import AppdgenError
-from appdgen.sampling.ranges import PAPER_RANGES
 from appdgen.geometry.maps import Rectification, rectify
+from appdgen.sampling.ranges import PAPER_RANGES
 
 #: The two reprojection scenarios of the paper's figure: (a) synthetic and (b) physical.
 SCENARIOS: tuple[str, ...] = ("synthetic", "physical")

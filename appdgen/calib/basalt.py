@@ -13,7 +13,7 @@ import numpy as np
 
 from appdgen import lens
 from appdgen.calib.calibration import DEFAULT_MODEL, INTRINSICS
-from appdgen.calib.fields import Found, Parts, allowed, as_mapping, read_size, k_matrix, need, number, short
+from appdgen.calib.fields import Found, Parts, allowed, as_mapping, k_matrix, need, number, read_size, short
 from appdgen.errors import AppdgenError
 
 #: Basalt ``camera_type`` → (appdgen model, how many of its coefficients ``intrinsics`` names; None: all).

@@ -15,8 +15,7 @@ from typing import Any
 import numpy as np
 
 from appdgen.calib.calibration import DEFAULT_MODEL
-from appdgen.calib.fields import (Found, Parts, allowed, as_mapping, k_matrix, need, numbers, optional_size,
-                                  short)
+from appdgen.calib.fields import Found, Parts, allowed, as_mapping, k_matrix, need, numbers, optional_size, short
 from appdgen.errors import AppdgenError
 
 _KALIBR_CAMERA = re.compile(r"cam[0-9]+")

@@ -9,7 +9,7 @@ import re
 from functools import partial
 
 from appdgen.calib.calibration import DEFAULT_MODEL
-from appdgen.calib.fields import Found, Parts, read_size, need, numbers
+from appdgen.calib.fields import Found, Parts, need, numbers, read_size
 from appdgen.errors import AppdgenError
 
 _KITTI_KEY = re.compile(r"^[ \t]*[SKD]_([0-9]{2})[ \t]*:", re.MULTILINE)

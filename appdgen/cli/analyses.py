@@ -9,25 +9,25 @@ import click
 import numpy as np
 
 from appdgen.calib.calibration import Calibration
-from appdgen.util.sizes import parse_size
 from appdgen.cli.base import (
-    fail_cleanly,
-    load_calibration,
     calib_option,
     camera_option,
-    size_option,
-    max_fov_option,
-    json_option,
     csv_option,
-    plot_option,
-    main,
-    format_table,
-    write_csv,
-    note,
     describe_source,
+    fail_cleanly,
+    format_table,
+    json_option,
+    load_calibration,
+    main,
+    max_fov_option,
+    note,
+    plot_option,
+    size_option,
     start_plot,
+    write_csv,
 )
 from appdgen.errors import AppdgenError
+from appdgen.util.sizes import parse_size
 
 
 @main.command()
@@ -55,7 +55,8 @@ def sweep(calib_path, camera, params, start, stop, steps, size, max_fov, csv_pat
     The default output size is the raw size, for fidelity; a quarter of it per side (--size 348x128 for KITTI)
     runs about 3 times faster and moves KITTI's APPD by under 0.0001 % of the diagonal.
     """
-    from appdgen.analysis.studies import sweep as sweep_appd, sweep_fractions
+    from appdgen.analysis.studies import sweep as sweep_appd
+    from appdgen.analysis.studies import sweep_fractions
 
     start_plot(plot_path)
     calib = load_calibration(calib_path, camera)

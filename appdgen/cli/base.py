@@ -11,10 +11,10 @@ from typing import IO, Any, Callable
 
 import click
 
-from appdgen.version import __version__
 from appdgen.calib.calibration import Calibration
 from appdgen.errors import AppdgenError
 from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
+from appdgen.version import __version__
 
 
 def fail_cleanly(command: Callable) -> Callable:

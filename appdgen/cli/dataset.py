@@ -7,26 +7,25 @@ from pathlib import Path
 
 import click
 
-from appdgen.util.sizes import parse_size
 from appdgen.cli.base import (
-    fail_cleanly,
-    recording_options,
-    sampling_options,
-    split_by_option,
-    images_option,
-    load_calibration,
     calib_option,
     camera_option,
-    size_option,
+    fail_cleanly,
+    images_option,
+    load_calibration,
     main,
+    recording_options,
+    sampling_options,
+    size_option,
+    split_by_option,
 )
-from appdgen.util.distribute import BACKENDS
-from appdgen.errors import AppdgenError
 from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS
 from appdgen.dataset.layout import BUILD_JSON, FORMATS
+from appdgen.errors import AppdgenError
 from appdgen.sources.recordings import CHANNELS
 from appdgen.synth.recording import KINDS as RECORDING_KINDS
-
+from appdgen.util.distribute import BACKENDS
+from appdgen.util.sizes import parse_size
 
 VERIFY_LINES = 20  # problems printed; the rest are counted
 
@@ -77,10 +76,10 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
     from appdgen.dataset.build import build as run_build
     from appdgen.dataset.folder import recorded_encoder
     from appdgen.dataset.plan import BuildConfig
-    from appdgen.util.distribute import resolve_jobs
     from appdgen.sampling.options import SamplingOptions
     from appdgen.sources.inputs import resolve_inputs
     from appdgen.sources.recordings import FrameChoice, resolve_channels
+    from appdgen.util.distribute import resolve_jobs
 
     if samples is not None and per_image is not None:
         raise AppdgenError("give --samples or --per-image, not both")
@@ -144,10 +143,10 @@ def synth(calib_path, camera, frames, out_dir, seed, scale, mount, offset, jobs,
     calibration (calibration.yaml; calibration.json for ds/eucm, which OpenCV YAML cannot hold)."""
     from appdgen.calib.defaults import DEFAULT_CALIB_PATH
     from appdgen.calib.formats import save
-    from appdgen.util.progress import Progress
-    from appdgen.util.distribute import resolve_jobs
     from appdgen.synth import MOUNTS, calibration_name, scale_calibration, synthesize
     from appdgen.synth.recording import frames_as, recording_target
+    from appdgen.util.distribute import resolve_jobs
+    from appdgen.util.progress import Progress
 
     if frames < 1:
         raise AppdgenError(f"--frames {frames}: must be at least 1")

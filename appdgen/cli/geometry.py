@@ -7,22 +7,22 @@ from pathlib import Path
 import click
 
 from appdgen.calib.calibration import Calibration
-from appdgen.util.sizes import parse_size
 from appdgen.cli.base import (
-    fail_cleanly,
-    load_calibration,
-    modified,
     calib_option,
     camera_option,
-    set_option,
-    perturb_option,
-    size_option,
+    fail_cleanly,
     interp_option,
-    max_fov_option,
     json_option,
+    load_calibration,
     main,
+    max_fov_option,
+    modified,
+    perturb_option,
+    set_option,
+    size_option,
 )
 from appdgen.errors import AppdgenError
+from appdgen.util.sizes import parse_size
 
 
 def _describe(calib: Calibration, new_k) -> dict:
@@ -90,10 +90,10 @@ def appd(calib_path, camera, sets, perturbs, against_path, against_camera, size,
 @fail_cleanly
 def rectify(calib_path, camera, sets, perturbs, size, max_fov, interp, image, output):
     """Rectify, crop and rescale one raw image with a (perturbed) calibration."""
-    from appdgen.sources.decode import read_image
     from appdgen.dataset.images import write_image
     from appdgen.geometry.maps import rectify as rectify_calibration
     from appdgen.geometry.remap import remap_image
+    from appdgen.sources.decode import read_image
 
     calib = modified(load_calibration(calib_path, camera), sets, perturbs)
     rect = rectify_calibration(calib, parse_size(size), max_fov=max_fov)

@@ -12,15 +12,15 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from appdgen.util.distribute import check_parallel, run_unordered
-from appdgen.errors import AppdgenError
-from appdgen.util.progress import Progress
-from appdgen.sampling.reach import UnreachableError
 from appdgen.dataset.folder import add_bend_columns, pending_shards, prepare_out
 from appdgen.dataset.plan import BuildConfig
 from appdgen.dataset.summary import summary
 from appdgen.dataset.worker import build_shard
+from appdgen.errors import AppdgenError
+from appdgen.sampling.reach import UnreachableError
 from appdgen.sources.raw import RawImageError
+from appdgen.util.distribute import check_parallel, run_unordered
+from appdgen.util.progress import Progress
 
 if TYPE_CHECKING:  # workers never import pyarrow (~80 ms of each one's start): the parent writes the fragments
     import pyarrow as pa

@@ -6,14 +6,22 @@ import json
 import shutil
 from pathlib import Path
 
-from appdgen.util.atomic import atomic_write, temporary_target
-from appdgen.geometry.crop import Crop
-from appdgen.errors import AppdgenError
-from appdgen.dataset.layout import (INDEX, OUTPUT_NAMES, PARTS_DIR, PLAN, SHARD_FILE, BEND_COLUMNS, CROP_COLUMNS,
-                                    fragment_name)
+from appdgen.dataset.layout import (
+    BEND_COLUMNS,
+    CROP_COLUMNS,
+    INDEX,
+    OUTPUT_NAMES,
+    PARTS_DIR,
+    PLAN,
+    SHARD_FILE,
+    fragment_name,
+)
 from appdgen.dataset.plan import BuildConfig, plan_content
 from appdgen.dataset.shards import BuildWriter, read_stats
 from appdgen.dataset.worker import warp_columns
+from appdgen.errors import AppdgenError
+from appdgen.geometry.crop import Crop
+from appdgen.util.atomic import atomic_write, temporary_target
 
 
 def recorded_encoder(out: Path) -> str | None:

@@ -10,8 +10,8 @@ import numpy as np
 
 from appdgen.dataset.encoders import DEFAULT_ENCODER, ENCODERS
 from appdgen.dataset.layout import FORMATS
-from appdgen.util.atomic import write_file
 from appdgen.errors import AppdgenError
+from appdgen.util.atomic import write_file
 
 
 def encode_image(image: np.ndarray, ext: str, encoder: str = DEFAULT_ENCODER) -> bytes:

@@ -17,8 +17,6 @@ from appdgen.dataset.reader import counts, open_build, read_members, shard_path
 from appdgen.errors import AppdgenError
 
 
-
-
 def summary(out: Path, bins: int = 10) -> str:
     """A text summary of a finished build: counts, splits, APPD labels and histogram, speed, size on disk."""
     build = open_build(out)

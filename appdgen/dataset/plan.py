@@ -8,18 +8,18 @@ import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from appdgen.version import __version__
 from appdgen.calib.calibration import Calibration
-from appdgen.geometry.crop import check_max_fov, check_output_size, valid_region
-from appdgen.errors import AppdgenError
 from appdgen.dataset.encoders import DEFAULT_ENCODER, LEGACY_ENCODER, get_encoder
 from appdgen.dataset.layout import FORMATS
 from appdgen.dataset.shards import BuildWriter
+from appdgen.errors import AppdgenError
+from appdgen.geometry.crop import check_max_fov, check_output_size, valid_region
 from appdgen.geometry.remap import DEFAULT_INTERP
-from appdgen.sampling.ranges import Range, default_ranges
 from appdgen.sampling.options import DEFAULT_ZERO_FRACTION, SamplingOptions
+from appdgen.sampling.ranges import Range, default_ranges
 from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Sampler
 from appdgen.sources.frames import RawImage
+from appdgen.version import __version__
 
 MAX_SHARD_SIZE = 1000  # default samples per shard of large builds
 MIN_SHARD_SIZE = 8  # … and about the least of small ones

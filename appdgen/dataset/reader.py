@@ -20,8 +20,17 @@ import pyarrow.parquet as pq
 from appdgen import lens
 from appdgen.calib.calibration import DEFAULT_MODEL, INTRINSICS, Calibration
 from appdgen.dataset.images import decode_image
-from appdgen.dataset.layout import (BUILD_JSON, FORMATS, FRAGMENT_GLOB, INDEX, PARTS_DIR, PLAN, SHARD_FILE,
-                                    known_schemas, member_names)
+from appdgen.dataset.layout import (
+    BUILD_JSON,
+    FORMATS,
+    FRAGMENT_GLOB,
+    INDEX,
+    PARTS_DIR,
+    PLAN,
+    SHARD_FILE,
+    known_schemas,
+    member_names,
+)
 from appdgen.errors import AppdgenError
 
 #: build.json's keys that are the build's options (what `appdgen build` was asked for, besides its inputs).

@@ -9,19 +9,29 @@ from __future__ import annotations
 
 import hashlib
 import io
-import tarfile
-from collections.abc import Sequence
-from contextlib import ExitStack
 import json
 import secrets
 import shutil
-from collections.abc import Callable
+import tarfile
+from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from appdgen.dataset.layout import (
+    BUILD_JSON,
+    HASH_COLUMN,
+    INDEX,
+    PARTS_DIR,
+    STATS_KEY,
+    ShardStats,
+    fragment_name,
+    label_schema,
+    member_names,
+    record_json,
+    shard_name,
+)
 from appdgen.util.atomic import atomic_stream, atomic_write
-from appdgen.dataset.layout import (BUILD_JSON, HASH_COLUMN, INDEX, PARTS_DIR, STATS_KEY, ShardStats, fragment_name,
-                                    label_schema, member_names, record_json, shard_name)
 
 if TYPE_CHECKING:
     import pyarrow as pa

@@ -10,8 +10,16 @@ from pathlib import Path
 import numpy as np
 
 from appdgen.dataset import images
-from appdgen.dataset.layout import (BUILD_JSON, FORMATS, INDEX, LABEL_COLUMN, SAMPLE_FIELDS, SHARD_GLOB,
-                                    SOURCE_COLUMNS, TARGETS)
+from appdgen.dataset.layout import (
+    BUILD_JSON,
+    FORMATS,
+    INDEX,
+    LABEL_COLUMN,
+    SAMPLE_FIELDS,
+    SHARD_GLOB,
+    SOURCE_COLUMNS,
+    TARGETS,
+)
 from appdgen.dataset.reader import ShardEntry as Shard
 from appdgen.dataset.reader import index_columns, open_build
 from appdgen.errors import AppdgenError

@@ -20,8 +20,18 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from appdgen.dataset.encoders import ENCODERS, LEGACY_ENCODER
-from appdgen.dataset.layout import (BUILD_JSON, HASH_COLUMN, INDEX, RECORD_EXT, SHARD_GLOB, member_names,
-                                    member_record, record_json, sample_key, shard_name)
+from appdgen.dataset.layout import (
+    BUILD_JSON,
+    HASH_COLUMN,
+    INDEX,
+    RECORD_EXT,
+    SHARD_GLOB,
+    member_names,
+    member_record,
+    record_json,
+    sample_key,
+    shard_name,
+)
 from appdgen.dataset.reader import check_finished, counts, image_ext, read_index, read_info, shard_path
 from appdgen.errors import AppdgenError
 

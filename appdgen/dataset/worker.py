@@ -8,13 +8,21 @@ from pathlib import Path
 
 import cv2
 
-from appdgen.geometry.appd import px_to_pct
 from appdgen.calib.calibration import Calibration
+from appdgen.dataset.images import encode_image
+from appdgen.dataset.layout import (
+    STAGES,
+    ShardStats,
+    bend_columns,
+    crop_columns,
+    sample_key,
+    shard_name,
+    source_columns,
+)
+from appdgen.dataset.plan import BuildConfig
+from appdgen.geometry.appd import px_to_pct
 from appdgen.geometry.bend import split_warp
 from appdgen.geometry.crop import Crop
-from appdgen.dataset.images import encode_image
-from appdgen.dataset.layout import STAGES, ShardStats, bend_columns, crop_columns, sample_key, shard_name, source_columns
-from appdgen.dataset.plan import BuildConfig
 from appdgen.geometry.maps import Rectification
 from appdgen.geometry.remap import remap_image
 from appdgen.sources.frames import Frame, RawImage

@@ -7,7 +7,6 @@ import numpy as np
 from appdgen.calib.calibration import Calibration
 from appdgen.geometry.maps import Rectification, rectify
 
-
 #: Output rows per block of the APPD reduction: the float32 scratch rows stay in cache (~180 KB at 1392 wide).
 BLOCK_ROWS = 32
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from appdgen import lens
 from appdgen.calib.calibration import Calibration
+from appdgen.errors import AppdgenError
 from appdgen.geometry.distortion import (
     distort_to_pixels,
     distortion_jacobian,
@@ -41,7 +42,6 @@ from appdgen.geometry.distortion import (
     radial_fold_radius,
     undistort_pixels,
 )
-from appdgen.errors import AppdgenError
 
 GRID_NODES = 1025
 #: Predicted error of the nodes' crop (output px at the raw size, either way) above which it is grown again against

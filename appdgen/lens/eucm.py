@@ -7,8 +7,17 @@ from typing import Any
 import numpy as np
 
 from appdgen.errors import AppdgenError
-from appdgen.lens.numerics import (angle_slope, first_nonpositive, namespace, plane_of_rays, quotient_model,
-                                   radius_of_angle, scale_maps, unit_rays, within_angle)
+from appdgen.lens.numerics import (
+    angle_slope,
+    first_nonpositive,
+    namespace,
+    plane_of_rays,
+    quotient_model,
+    radius_of_angle,
+    scale_maps,
+    unit_rays,
+    within_angle,
+)
 
 NAME = "eucm"
 PARAMS: tuple[str, ...] = ("alpha", "beta")

@@ -6,8 +6,16 @@ from typing import Any
 
 import numpy as np
 
-from appdgen.lens.numerics import (angle_rays, first_nonpositive, namespace, plane_of_rays, radial_project,
-                                   radius_of_angle, scale_jacobian, scale_maps)
+from appdgen.lens.numerics import (
+    angle_rays,
+    first_nonpositive,
+    namespace,
+    plane_of_rays,
+    radial_project,
+    radius_of_angle,
+    scale_jacobian,
+    scale_maps,
+)
 
 NAME = "kb4"
 PARAMS: tuple[str, ...] = ("k1", "k2", "k3", "k4")

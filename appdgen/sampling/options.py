@@ -6,8 +6,8 @@ import functools
 from dataclasses import dataclass
 
 from appdgen.calib.calibration import Calibration
-from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
 from appdgen.errors import AppdgenError
+from appdgen.geometry.remap import DEFAULT_INTERP, INTERPOLATIONS
 from appdgen.sampling.ranges import Range, default_ranges, parse_ranges
 from appdgen.sampling.sampler import DEFAULT_APPD_MAX, Sampler
 

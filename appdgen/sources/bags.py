@@ -11,10 +11,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from appdgen.sources.frames import Frame, Index
-from appdgen.sources.decode import decode_bytes, to_8bit
-from appdgen.sources.headers import ImageHeader, header_problem, stream_header, truncation
 from appdgen.errors import AppdgenError
+from appdgen.sources.decode import decode_bytes, to_8bit
+from appdgen.sources.frames import Frame, Index
+from appdgen.sources.headers import ImageHeader, header_problem, stream_header, truncation
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"

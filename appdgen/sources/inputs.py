@@ -10,13 +10,13 @@ import numpy as np
 
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.formats import calibration_topic, list_cameras, load
-from appdgen.sources import recordings
-from appdgen.sources.recordings import FrameChoice
-from appdgen.sources.frames import RawImage
-from appdgen.sources.raw import RawReader
-from appdgen.sources.files import all_grey, check_images, kitti_camera, list_images
-from appdgen.sources.headers import image_size
 from appdgen.errors import AppdgenError
+from appdgen.sources import recordings
+from appdgen.sources.files import all_grey, check_images, kitti_camera, list_images
+from appdgen.sources.frames import RawImage
+from appdgen.sources.headers import image_size
+from appdgen.sources.raw import RawReader
+from appdgen.sources.recordings import FrameChoice
 
 
 @dataclass(frozen=True)

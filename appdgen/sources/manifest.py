@@ -11,11 +11,11 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
-from appdgen.util.atomic import write_file
-from appdgen.errors import AppdgenError
 from appdgen.calib.formats import load
+from appdgen.errors import AppdgenError
 from appdgen.sources.files import KITTI_DAY, KITTI_DRIVE
 from appdgen.sources.headers import image_size
+from appdgen.util.atomic import write_file
 
 CALIBRATION = "calib_cam_to_cam.txt"
 _FOLDER = re.compile(f"({KITTI_DRIVE})_(extract|sync)")  # a drive's unrectified (_extract) or rectified folder

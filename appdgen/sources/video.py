@@ -7,9 +7,9 @@ from contextlib import contextmanager
 from fractions import Fraction
 from pathlib import Path
 
+from appdgen.errors import AppdgenError
 from appdgen.sources.frames import Frame, Index
 from appdgen.sources.headers import ImageHeader, header_problem
-from appdgen.errors import AppdgenError
 
 
 def _av():

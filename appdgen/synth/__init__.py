@@ -18,14 +18,14 @@ import cv2
 import numpy as np
 
 from appdgen.calib.calibration import Calibration
-from appdgen.geometry.distortion import pixel_rays, radial_fold_radius, undistort_pixels
-from appdgen.util.distribute import run_unordered
-from appdgen.errors import AppdgenError
 from appdgen.calib.formats import native_suffix
 from appdgen.dataset.images import write_image
+from appdgen.errors import AppdgenError
+from appdgen.geometry.distortion import pixel_rays, radial_fold_radius, undistort_pixels
 from appdgen.synth.cubemap import CubeMaps, cube_maps, render_cube
 from appdgen.synth.raster import Canvas
 from appdgen.synth.street import CAR, MOUNTS, Mount, Scene, random_street
+from appdgen.util.distribute import run_unordered
 
 __all__ = ["CAR", "MOUNTS", "Mount", "calibration_name", "frame_name", "frame_rng", "render_frame", "render_ideal", "scale_calibration",
            "synthesize"]

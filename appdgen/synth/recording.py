@@ -46,7 +46,8 @@ def write_bag(path: Path, frames: Iterable[np.ndarray], kind: str = "bag", topic
     """Write frames as one image topic of a ROS 1 bag (kind 'bag') or a ROS 2 bag folder ('mcap', 'db3'), at
     `period_ns` apart; returns the number of frames."""
     from rosbags.rosbag1 import Writer as Writer1
-    from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Writer2
     from rosbags.typesys import Stores, get_typestore
 
     typestore = get_typestore(Stores.ROS2_HUMBLE)

@@ -6,13 +6,11 @@ rectified with the build sampler's draw(seed, i) at the raw size (or --size, as 
 unseen calibration. Prints, per target, the out-of-fold MAE / mean-predictor MAE (--folds interleaved folds, each
 frame predicted by a fit on the others, against their mean) and Spearman ρ, and the time of line_features per image.
 
-Run: python benchmarks/plumbline.py [--frames 160] [--scale 0.25] [--seed 0] [--folds 5] [--size WxH]
+Run: python -m studies.plumbline [--frames 160] [--scale 0.25] [--seed 0] [--folds 5] [--size WxH]
 """
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 import time
 
 import cv2
@@ -25,8 +23,7 @@ from appdgen.geometry.remap import remap_image
 from appdgen.sampling.sampler import Sampler, target_px
 from appdgen.synth import frame_rng, render_frame, scale_calibration
 from appdgen.util.sizes import parse_size
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
-from train.plumbline import PlumbLine, feature_matrix  # noqa: E402
+from train.plumbline import PlumbLine, feature_matrix
 
 
 def pairs(scenes: int, scale: float, seed: int, draws: int = 1, size: tuple[int, int] | None = None

@@ -1,6 +1,6 @@
 """Fixed pairs against fresh pairs: the same network, the same frames, the same minutes, the same unseen test set.
 
-    python benchmarks/online_vs_offline.py [--frames 1000] [--per-frame 8] [--test-frames 100] [--minutes 20]
+    python -m studies.online_vs_offline [--frames 1000] [--per-frame 8] [--test-frames 100] [--minutes 20]
                                            [--out runs/online-vs-offline] [--scale 0.25]
 
 Synthetic car-mount KITTI 02 frames (train: one seed, test: another, so no scene is shared). Arm `offline`
@@ -115,13 +115,13 @@ def main() -> None:
           f"{args.frames * args.per_frame} pairs, test {args.test_frames * args.test_per_frame} pairs", flush=True)
     cores = sorted(os.sched_getaffinity(0))
     passed = [a for a in sys.argv[1:]]
-    procs = [subprocess.Popen([sys.executable, __file__, *passed, "--arm", name, "--core", str(cores[i % len(cores)])])
+    procs = [subprocess.Popen([sys.executable, "-m", "studies.online_vs_offline", *passed, "--arm", name, "--core", str(cores[i % len(cores)])])
              for i, name in enumerate(ARMS)]
     codes = [p.wait() for p in procs]
     if any(codes):
         sys.exit(f"an arm failed (exit {codes})")
     print(table(out))
-    print(json.dumps({"command": " ".join(["python", "benchmarks/online_vs_offline.py", *passed]),
+    print(json.dumps({"command": " ".join(["python", "-m", "studies.online_vs_offline", *passed]),
                       "seconds": round(time.perf_counter() - start)}))
 
 

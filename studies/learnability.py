@@ -2,7 +2,7 @@
 against the mean predictor every --val-every steps. For quick experiments on what makes APPD learnable; the fit is
 the trainer's one loop (train.loop.Trainer) over the split held in memory, its run in --run.
 
-    python benchmarks/learnability.py SHARDS [--minutes 10] [--lr 1e-4] [--small] [--bn] [--run runs/learnability]
+    python -m studies.learnability SHARDS [--minutes 10] [--lr 1e-4] [--small] [--bn] [--run runs/learnability]
 
 SHARDS needs `train` and `test` splits (appdgen build --split-by parent). Images are decoded once with the
 trainer's own shard reader; each step is the trainer's (bf16 autocast where the CPU has it, channels_last).
@@ -12,22 +12,20 @@ from __future__ import annotations
 import argparse
 import csv
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # train/, studies/: folders of the repo
-import train.model as model  # noqa: E402
-from train import checkpoint  # noqa: E402
-from appdgen.dataset.shardset import open_shards  # noqa: E402
-from train.data import Selection, ShardStream, StreamSpec  # noqa: E402
-from train.fit import FitOptions  # noqa: E402
-from train.loop import Trainer  # noqa: E402
-from train.model import ModelConfig  # noqa: E402
-from train.online.trainer import OnlinePlan  # noqa: E402
+import train.model as model
+from appdgen.dataset.shardset import open_shards
+from train import checkpoint
+from train.data import Selection, ShardStream, StreamSpec
+from train.fit import FitOptions
+from train.loop import Trainer
+from train.model import ModelConfig
+from train.online.trainer import OnlinePlan
 
 #: The smaller network of the paper's released code (4 blocks of 8 filters, dense 256 → 64): ~14× fewer FLOPs.
 SMALL = dict(filters=(8, 8, 8, 8), dense=(256, 64))

@@ -7,7 +7,7 @@ Prints, for a build's labels.parquet and for one-parameter perturbations at the 
 non-affine displacement: APPD in raw pixels, the rest in output pixels (one unit when the
 build kept the raw size).
 
-Run: python benchmarks/visibility.py demo/shards [--samples 150]
+Run: python -m studies.visibility demo/shards [--samples 150]
 """
 from __future__ import annotations
 
@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from appdgen.calib.calibration import Calibration
+from appdgen.dataset.reader import open_build
 from appdgen.geometry.appd import appd_px
 from appdgen.geometry.bend import affine_rest
-from appdgen.calib.calibration import Calibration
 from appdgen.geometry.distortion import undistort_pixels
 from appdgen.geometry.maps import Rectification, rectify
-from appdgen.dataset.reader import open_build
 from appdgen.sampling.ranges import parse_ranges
 
 STRIDE = 4  # output pixels between evaluated grid points: the split is smooth, a coarse grid suffices

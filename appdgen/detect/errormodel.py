@@ -31,7 +31,9 @@ MEAT_MIX = 0.25
 #: φ's floor, in sds of the prior's mean variance: below what real sequences under their true files choose with a
 #: baseline (the real-sets study); the likelihood chooses φ above it.
 SCENE_FLOOR = 0.1
-PHI_MAX = 3.0  # the largest scene term considered, prior sds
+#: The largest scene term considered, prior sds: a larger one lets a grossly wrong belief explain its bend as scenery
+#: (it reads "uncertain"), a smaller one cuts the ± below the truth on real frames (docs/studies/, real sets).
+PHI_MAX = 1.5
 PHI_STEPS = 9  # values of φ on a log grid from the floor to PHI_MAX (a log-uniform prior)
 SHAPES = (0.0, 0.5, 1.0)  # values of γ (a uniform prior)
 

@@ -1,4 +1,4 @@
-"""A thin torch trainer for APPD regression on appdgen's WebDataset shards (issue #6).
+"""A thin torch trainer for APPD regression on appdgen's WebDataset shards.
 
 torch is an optional extra (`pip install -e .[train]`); nothing here imports it at package import.
 """

@@ -59,7 +59,7 @@ class Mount:
 #: vanishing point moves by σ 10 px across and ±8 px up and down, the horizon tilts by ±3.5 px at the image edge:
 #: less than a ±5 % principal-point error (±35 px in x, ±11 px in y), so the scene's geometry stays a cue to it.
 CAR = Mount(height=1.65, height_jitter=0.03, lateral=0.3, yaw=0.01, yaw_max=0.03, pitch=0.008, roll=0.005)
-#: The pose spread before issue #14 (a camera waved around: yaw σ 0.12 rad, pitch ±0.05, roll ±0.035): it moves
+#: A hand-held pose spread (a camera waved around: yaw σ 0.12 rad, pitch ±0.05, roll ±0.035): it moves
 #: the vanishing point by σ 115 px across and ±48 px up and down at full size, hiding the principal point's cue.
 LOOSE = Mount(height=1.75, height_jitter=0.35, lateral=0.3, yaw=0.12, yaw_max=0.3, pitch=0.05, roll=0.035)
 #: Names for the command line.

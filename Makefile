@@ -76,7 +76,7 @@ train: $(TRAIN_STAMP) $(FLOOR_TRAIN)/calibration.yaml $(FLOOR_UNSEEN)/calibratio
 		$(PY) -m train fit --online --model plumbline --target $$t --calib $(FLOOR_TRAIN)/calibration.yaml \
 			--images $(FLOOR_TRAIN) --interp cubic --steps 10 --batch 30 --val-split none --stats-samples 300 \
 			--run $(FLOOR)/$$t --quiet > $(FLOOR)/$$t/fit.json && \
-		$(PY) -m train evaluate --ckpt $(FLOOR)/$$t/last.pt --frames $(FLOOR_UNSEEN) --length 10 --threshold 0.5 \
+		$(PY) -m train evaluate --ckpt $(FLOOR)/$$t/last.pt --frames $(FLOOR_UNSEEN) --length 10 \
 			--json $(FLOOR)/$$t/eval.json > /dev/null || exit 1; \
 	done
 	@$(PY) -m studies.bendfield --streets $(FLOOR)/raw --axes unseen --lenses "" --no-sequential --jobs 2 \
@@ -90,7 +90,7 @@ train-cnn: $(TRAIN_STAMP)
 	@test -f $(DEMO)/shards/labels.parquet || $(MAKE) demo
 	rm -rf runs/demo
 	$(PY) -m train fit --shards $(DEMO)/shards --split train --run runs/demo --epochs 30 --max-minutes 13 --quiet
-	$(PY) -m train evaluate --ckpt runs/demo/best.pt --shards $(DEMO)/shards --split test --threshold 0.5 \
+	$(PY) -m train evaluate --ckpt runs/demo/best.pt --shards $(DEMO)/shards --split test \
 		--json runs/demo/eval.json --plot runs/demo/eval.png
 
 # Times of the geometry (crop, maps, APPD) and of a small build.

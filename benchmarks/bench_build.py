@@ -77,13 +77,14 @@ def codec_round(samples: list[np.ndarray], name: str) -> dict:
     encoder = ENCODERS[name]
     data = [encoder.encode(s) for s in samples]
     exact = all(np.array_equal(cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED), s)
-                for d, s in zip(data, samples)) and data == [encoder.encode(s) for s in samples]
+                for d, s in zip(data, samples, strict=True)) and data == [encoder.encode(s) for s in samples]
     result = {"encode": _ms(encoder.encode, samples), "bytes": float(np.mean([len(d) for d in data])),
               "opencv": _ms(lambda d: cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED), data),
               "exact": exact}
     if pyspng is not None:
         result["pyspng"] = _ms(pyspng.load, data)
-        result["exact"] = exact and all(np.array_equal(pyspng.load(d)[:, :, ::-1], s) for d, s in zip(data, samples))
+        result["exact"] = exact and all(np.array_equal(pyspng.load(d)[:, :, ::-1], s)
+                                        for d, s in zip(data, samples, strict=True))
     return result
 
 

@@ -76,8 +76,10 @@ def main() -> None:
     counter = iter(range(10**9))
     sample = best_of(lambda: sampler.draw(0, next(counter)), repeat=5, number=100)
     print(f"LANCZOS4 remap {calib.width}x{calib.height}x3     {remap * 1e3:7.2f} ms   (1.00)")
-    print(f"crop + maps + APPD (one perturbed) {geometry * 1e3:7.2f} ms   ({geometry / remap:.3f} of a remap; target <= 0.25)")
-    print(f"sampler, per accepted sample       {sample * 1e3:7.2f} ms   ({sample / remap:.3f} of a remap; target <= 0.10)")
+    print(f"crop + maps + APPD (one perturbed) {geometry * 1e3:7.2f} ms   "
+          f"({geometry / remap:.3f} of a remap; target <= 0.25)")
+    print(f"sampler, per accepted sample       {sample * 1e3:7.2f} ms   "
+          f"({sample / remap:.3f} of a remap; target <= 0.10)")
     print("crop + maps + APPD per lens model, as a fraction of one LANCZOS4 remap at raw size (target <= 0.25):")
     for name, (camera, max_fov) in MODEL_CAMERAS.items():
         remap, geometry = geometry_ratio(camera, max_fov)

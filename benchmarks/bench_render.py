@@ -64,15 +64,15 @@ def main() -> None:
     print(f"{'renderer':34s} {'size':>9s} {'maps':>11s} {'ms/image':>9s} {'images/s':>9s} {'ratio':>6s}")
     for size in SIZES:
         new_ks = [k.camera_matrix(size) for k in crops]
-        rects = [rectify(c, size, crop=k) for c, k in zip(calibs, crops)]
+        rects = [rectify(c, size, crop=k) for c, k in zip(calibs, crops, strict=True)]
 
         def cv2_fresh(flag: int) -> None:
-            for frame, c, k in zip(frames, calibs, crops):
+            for frame, c, k in zip(frames, calibs, crops, strict=True):
                 r = rectify(c, size, crop=k)
                 cv2.remap(frame, r.map_x, r.map_y, flag, borderMode=cv2.BORDER_REFLECT_101)
 
         def cv2_reused(flag: int) -> None:
-            for frame, r in zip(frames, rects):
+            for frame, r in zip(frames, rects, strict=True):
                 cv2.remap(frame, r.map_x, r.map_y, flag, borderMode=cv2.BORDER_REFLECT_101)
 
         map_x, map_y = maps_batch(calibs, new_ks, size)

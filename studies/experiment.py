@@ -42,7 +42,8 @@ class ExperimentOptions:
     samples: int = 20000  # train samples; val and test frames get as many per frame
     scale: float = 1.0  # 1.0 = 1392x512, 0.25 = 348x128
     image_format: str = "png"
-    minutes: float = 6.0  # fit's wall-clock budget (online: no train build, so ~2 of the 9 minutes more than offline's 4)
+    #: fit's wall-clock budget (online: no train build, so ~2 of the 9 minutes more than offline's 4)
+    minutes: float = 6.0
     steps: int | None = None  # a step budget instead (tests)
     batch: int = 32
     lr: float = 1e-4

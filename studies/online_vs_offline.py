@@ -82,7 +82,7 @@ def table(out: Path) -> str:
     rows = {name: list(csv.DictReader(open(out / f"{name}.csv"))) for name in ARMS}
     lines = ["| minute | offline images | offline test MAE / mean | online images | online test MAE / mean |",
              "|---:|---:|---:|---:|---:|"]
-    for a, b in zip(*rows.values()):
+    for a, b in zip(*rows.values(), strict=False):
         lines.append(f"| {a['minute']} | {a['images']} | {a['ratio']} ({a['test_mae']} / {a['mean_mae']} %) | "
                      f"{b['images']} | {b['ratio']} ({b['test_mae']} / {b['mean_mae']} %) |")
     return "\n".join(lines)
@@ -115,7 +115,8 @@ def main() -> None:
           f"{args.frames * args.per_frame} pairs, test {args.test_frames * args.test_per_frame} pairs", flush=True)
     cores = sorted(os.sched_getaffinity(0))
     passed = [a for a in sys.argv[1:]]
-    procs = [subprocess.Popen([sys.executable, "-m", "studies.online_vs_offline", *passed, "--arm", name, "--core", str(cores[i % len(cores)])])
+    procs = [subprocess.Popen([sys.executable, "-m", "studies.online_vs_offline", *passed, "--arm", name,
+                               "--core", str(cores[i % len(cores)])])
              for i, name in enumerate(ARMS)]
     codes = [p.wait() for p in procs]
     if any(codes):

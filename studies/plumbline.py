@@ -2,9 +2,10 @@
 was not fitted on, for appd_pct and bend_pct, at a raw size scaled by --scale (0.25 → 348×128).
 
 Each frame i is a new synthetic street (synth.render_frame, seed [seed, i]) seen through the reference camera and
-rectified with the build sampler's draw(seed, i) at the raw size (or --size, as fit --online's --size): every test frame is an unseen scene under an
-unseen calibration. Prints, per target, the out-of-fold MAE / mean-predictor MAE (--folds interleaved folds, each
-frame predicted by a fit on the others, against their mean) and Spearman ρ, and the time of line_features per image.
+rectified with the build sampler's draw(seed, i) at the raw size (or --size, as fit --online's --size): every test
+frame is an unseen scene under an unseen calibration. Prints, per target, the out-of-fold MAE / mean-predictor MAE
+(--folds interleaved folds, each frame predicted by a fit on the others, against their mean) and Spearman ρ, and the
+time of line_features per image.
 
 Run: python -m studies.plumbline [--frames 160] [--scale 0.25] [--seed 0] [--folds 5] [--size WxH]
 """

@@ -1,4 +1,5 @@
-"""How much of an APPD label can one image show? Splits each sample's warp into what an affine map explains and the rest.
+"""How much of an APPD label can one image show? Splits each sample's warp into what an affine map explains and
+the rest.
 
 A sample image is the reference rectification warped by W(p) = K̂*·undistort(M̂m(p); Θ*) in reference output
 pixels. A translation or a zoom of the whole picture (the affine part of W) leaves straight lines straight, so a
@@ -61,10 +62,12 @@ def main() -> None:
     size = (int(table.width.iloc[0]), int(table.height.iloc[0]))
     ref = rectify(ref_calib, size)
     rows = table.sample(min(args.samples, len(table)), random_state=0)
-    pairs = np.array([split(ref, ref_calib.replace(**{p: r[p] for p in ref_calib.param_names})) for _, r in rows.iterrows()])
+    pairs = np.array([split(ref, ref_calib.replace(**{p: r[p] for p in ref_calib.param_names}))
+                      for _, r in rows.iterrows()])
     appd, rest = pairs[:, 0], pairs[:, 1]
     print(f"{len(rows)} samples of {args.shards}: mean APPD {appd.mean():.2f} px, mean non-affine part "
-          f"{rest.mean():.2f} px ({rest.mean() / appd.mean():.0%}); correlation with APPD {np.corrcoef(appd, rest)[0, 1]:.2f}")
+          f"{rest.mean():.2f} px ({rest.mean() / appd.mean():.0%}); "
+          f"correlation with APPD {np.corrcoef(appd, rest)[0, 1]:.2f}")
     print("one parameter at a time, at the build's range edges:")
     for name in ref_calib.param_names:
         for edge in ranges[name].offsets(getattr(ref_calib, name)):

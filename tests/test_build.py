@@ -141,7 +141,8 @@ LABEL_COLUMNS = [
     *[(name, "double") for name in ("crop_x0", "crop_y0", "crop_x1", "crop_y1")],
     *[(name, "double") for name in ("bend_px", "bend_pct", "shift_x_px", "shift_y_px", "scale")],
 ]
-BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "images_sha256", "channels", "max_fov", "samples", "size", "format", "encoder", "shard_size", "seed",
+BUILD_JSON_KEYS = {"appdgen_version", "calibration", "images", "images_sha256", "channels", "max_fov", "samples",
+                   "size", "format", "encoder", "shard_size", "seed",
                    "appd_max", "zero_fraction", "interp", "ranges", "command", "counts", "shards", "sampler",
                    "timings", "libraries"}
 
@@ -208,7 +209,7 @@ def test_shards_read_with_plain_webdataset(reference_build: Path, tmp_path: Path
     samples = [json.loads(line) for line in done.stdout.splitlines()]
     rows = pq.read_table(reference_build / "labels.parquet").to_pylist()
     assert [s["key"] for s in samples] == [r["key"] for r in rows]
-    for sample, row in zip(samples, rows):
+    for sample, row in zip(samples, rows, strict=True):
         assert sample["shape"] == [32, 87, 3] and sample["sha256"] == row["sha256"]
         assert sample["label"] == member_record(row)
         assert not set(sample["label"]) & {"sha256", *CROP_COLUMNS, *BEND_COLUMNS}  # index-only: members keep bytes

@@ -36,7 +36,7 @@ from studies.detector import (  # noqa: E402
 from studies.experiment import main  # noqa: E402
 from train.online.recipe import PairRecipe  # noqa: E402
 from train.scoring import auc  # noqa: E402
-from train.scoring import sequence_metrics as metrics
+from train.scoring import sequence_metrics as metrics  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -70,7 +70,7 @@ def test_batched_maps_hold_one_calibration_per_row(name):
     # Each row its own crop (so K̂ differs per row too): the reference's, shrunk about the axis.
     box = crop_of(name)
     crops = [Crop(box.x0 * f, box.y0 * f, box.x1 * f, box.y1 * f) for f in (1.0, 0.9, 0.8)]
-    rects = [rectify(c, size, crop=k) for c, k in zip(calibs, crops)]
+    rects = [rectify(c, size, crop=k) for c, k in zip(calibs, crops, strict=True)]
     map_x, map_y = raw_positions_batch(calibs, [r.new_camera_matrix for r in rects], size,
                                        like=torch.empty(0, dtype=torch.float64))
     assert map_x.shape == (3, size[1], size[0])

@@ -43,7 +43,8 @@ def test_project_matches_cv2_project_points():
     x, y = rng.uniform(-0.9, 0.9, 500), rng.uniform(-0.35, 0.35, 500)
     z = rng.uniform(0.5, 80.0, 500)
     points = np.stack([x * z, y * z, z], 1)
-    expected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), KITTI_2011_09_26["02"].K, KITTI_2011_09_26["02"].D)
+    camera = KITTI_2011_09_26["02"]
+    expected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, camera.D)
     u, v = project(points, KITTI_2011_09_26["02"])
     np.testing.assert_allclose(np.stack([u, v], 1), expected.reshape(-1, 2), atol=1e-8)
     xd, yd = distort_normalized(x, y, KITTI_2011_09_26["02"])

@@ -111,7 +111,8 @@ def test_predict_rectifies_raw_fisheye_frames_as_the_build_did(chain, capsys):
     ckpt = checkpoint.load(ckpt_path)
     frame, sample = reference_sample(chain)
     raw = cv2.imread(str(chain / "raw" / frame))
-    prep = rectifier(str(chain / "raw" / "calibration.yaml"), None, (128, 128), rectify_rule(ckpt, str(ckpt_path), None))
+    prep = rectifier(str(chain / "raw" / "calibration.yaml"), None, (128, 128),
+                     rectify_rule(ckpt, str(ckpt_path), None))
     np.testing.assert_array_equal(prep(raw, frame), sample)  # the very pixels the detector was trained on
     out = train_cli(["predict", "--ckpt", ckpt_path, "--calib", chain / "raw" / "calibration.yaml",
                      chain / "raw" / frame, "--json"], capsys)

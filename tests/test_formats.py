@@ -1,4 +1,5 @@
-"""appdgen.calib.formats: real files, small fixtures, malformed files, writers, and fuzzing that only AppdgenError escapes."""
+"""appdgen.calib.formats: real files, small fixtures, malformed files, writers, and fuzzing that only AppdgenError
+escapes."""
 from __future__ import annotations
 
 import csv
@@ -106,7 +107,8 @@ def test_real_kalibr_camchains(shared: Path, name: str) -> None:
 
 def test_real_euroc_files_agree(shared: Path) -> None:
     sensor = load(shared / "formats" / "euroc_cam0_sensor.yaml")
-    assert sensor.to_dict() == {"width": 752, "height": 480, "model": "radtan", "fx": 458.654, "fy": 457.296, "cx": 367.215,
+    assert sensor.to_dict() == {"width": 752, "height": 480, "model": "radtan", "fx": 458.654, "fy": 457.296,
+                                "cx": 367.215,
                                 "cy": 248.375, "k1": -0.28340811, "k2": 0.07395907, "p1": 0.00019359,
                                 "p2": 1.76187114e-05, "k3": 0.0}
     assert sensor == load(shared / "formats" / "kalibr_imucam_chain.yaml", camera="cam0")
@@ -134,7 +136,7 @@ def test_real_basalt_files(shared: Path, name: str, model: str) -> None:
     path = shared / "formats" / name
     doc = json.loads(path.read_text())["value0"]
     assert list_cameras(path) == ["cam0", "cam1"]
-    for i, (camera, (w, h)) in enumerate(zip(doc["intrinsics"], doc["resolution"])):
+    for i, (camera, (w, h)) in enumerate(zip(doc["intrinsics"], doc["resolution"], strict=True)):
         assert camera["camera_type"] == model
         calib = load(path, camera=i)
         assert calib.model == model and calib.size == (w, h)

@@ -42,7 +42,8 @@ def test_a_zero_distortion_camera_with_unreachable_appd_max_is_refused_up_front(
     out = tmp_path / "out"
     result = run_cli(["build", "--calib", str(tmp_path / "calib.txt"), "--images", str(tmp_path / "raw"), "--out",
                       str(out), "--ranges", "fx=-5%:5%,cx=-5%:5%,k1=-0.03:0.03", "--size", "423x339", "--quiet"])
-    line = assert_one_line_error(result, "--appd-max 1", "lower --appd-max or widen --ranges", "without lens distortion")
+    line = assert_one_line_error(result, "--appd-max 1", "lower --appd-max or widen --ranges",
+                                 "without lens distortion")
     assert 0.3 < float(re.search(r"about ([\d.]+) %", line).group(1)) < 1.0
     assert not out.exists()
 
@@ -227,7 +228,8 @@ def test_architecture_names_the_modules_that_exist() -> None:
     missing = [n for n in sorted(named) if not any(list(p.rglob(f"{n}.py")) for p in packages)
                and not any((root / n).is_dir() for root in (ROOT / "appdgen", ROOT / "train", ROOT))]
     assert not missing, missing
-    for module in ("layout", "sampler", "build", "reader", "inspect", "verify", "files", "recordings", "shards", "formats",
+    for module in ("layout", "sampler", "build", "reader", "inspect", "verify", "files", "recordings", "shards",
+                   "formats",
                    "crop", "loop", "holdout"):
         assert f"{module}.py" in text, module
 

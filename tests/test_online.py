@@ -107,7 +107,7 @@ def test_batches_do_not_depend_on_workers_and_device_images_match_cpu(frames):
     alone = list(pair_loader(cpu, 0))
     two = list(pair_loader(cpu, 2))
     assert len(alone) == 3 and all(torch.equal(a["image"], b["image"]) and torch.equal(a["label"], b["label"])
-                                   for a, b in zip(alone, two))
+                                   for a, b in zip(alone, two, strict=True))
     from train.online.render import DeviceFrames
 
     device = list(pair_loader(PairSpec(scene, raw, 3, 2, "device", count=6), 0))
@@ -211,7 +211,8 @@ def test_online_vs_offline_benchmark_prints_its_table(tmp_path):
     import sys
 
     root = Path(__file__).parents[1]
-    result = subprocess.run([sys.executable, "-m", "studies.online_vs_offline", "--frames", "6", "--per-frame", "2", "--test-frames", "3",
+    result = subprocess.run([sys.executable, "-m", "studies.online_vs_offline", "--frames", "6", "--per-frame", "2",
+                             "--test-frames", "3",
                              "--minutes", "1", "--batch", "8", "--out", str(tmp_path / "ovo")],
                             capture_output=True, text=True, timeout=600, cwd=root)
     assert result.returncode == 0, result.stderr

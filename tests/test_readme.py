@@ -136,7 +136,7 @@ def documented_columns(coefficients: tuple[str, ...]) -> list[tuple[str, str]]:
         names = list(coefficients) if names == "the model's coefficients" else ticked(names)
         kinds = types.split(", ")
         assert len(kinds) in (1, len(names)), (names, types)
-        columns += zip(names, kinds * len(names) if len(kinds) == 1 else kinds)
+        columns += zip(names, kinds * len(names) if len(kinds) == 1 else kinds, strict=False)
     return columns
 
 

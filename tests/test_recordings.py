@@ -198,7 +198,8 @@ def test_split_by_recording_and_the_trainers_holdout(inputs: Path, tmp_path: Pat
     pytest.importorskip("torch")  # the trainer's holdout keeps each recording whole
     from train.holdout import holdout_group
 
-    assert {holdout_group(r, s) for r, s in zip(table["raw_path"], table["source"])} == {"a.bag", "b.bag", "c.mp4"}
+    groups = {holdout_group(r, s) for r, s in zip(table["raw_path"], table["source"], strict=True)}
+    assert groups == {"a.bag", "b.bag", "c.mp4"}
 
 
 def _kalibr(path: Path, small_camera, topics: dict[str, str]) -> Path:
@@ -274,7 +275,7 @@ def test_synth_writes_its_frames_as_a_recording(kind: str, tmp_path: Path) -> No
         errors = np.array([[np.abs(g - e).mean() for e in expected] for g in grey])
         assert (errors.argmin(1) == np.arange(3)).all() and errors.diagonal().max() < 8  # each is its own frame
     else:
-        assert all(np.array_equal(g, e) for g, e in zip(got, expected))
+        assert all(np.array_equal(g, e) for g, e in zip(got, expected, strict=True))
     assert_one_line_error(run_cli(["synth", "--frames", "1", "--scale", "0.125", "--out", str(rec), "--as", kind]),
                           "exists already")
 
@@ -309,7 +310,8 @@ def test_encodings_decode_to_grey_or_bgr() -> None:
     grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
     deep = np.arange(60, dtype=np.uint16).reshape(6, 10) * 1000
     bayer = grey  # any 1-channel mosaic: compared with OpenCV's own demosaicing of it
-    cases = {"bgr8": (bgr, bgr), "rgb8": (bgr, bgr), "mono8": (grey, grey), "mono16": (deep, (deep // 256).astype(np.uint8)),
+    cases = {"bgr8": (bgr, bgr), "rgb8": (bgr, bgr), "mono8": (grey, grey),
+             "mono16": (deep, (deep // 256).astype(np.uint8)),
              "bgra8": (cv2.cvtColor(bgr, cv2.COLOR_BGR2BGRA), bgr),
              "bayer_rggb8": (bayer, cv2.cvtColor(bayer, cv2.COLOR_BayerBG2BGR)),
              "bayer_grbg8": (bayer, cv2.cvtColor(bayer, cv2.COLOR_BayerGB2BGR))}

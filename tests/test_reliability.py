@@ -347,7 +347,8 @@ def test_full_disk_fails_cleanly_then_resumes_to_identical_bytes(setup: Setup, r
 def test_shard_members_are_plain_files_with_safe_names(reference_build: Path, setup: Setup) -> None:
     safe = getattr(tarfile, "data_filter", None)  # the stdlib's safe-extraction rules (3.10.12+, 3.11.4+)
     for shard in sorted(reference_build.glob("shard-*.tar")):
-        assert_shard_complete(shard, setup)  # plain files named <key>.json / <key>.png: no links, '..', '/' or absolute names
+        # plain files named <key>.json / <key>.png: no links, '..', '/' or absolute names
+        assert_shard_complete(shard, setup)
         with tarfile.open(shard) as tar:
             for member in tar.getmembers():
                 assert (member.mode, member.uid, member.gid, member.mtime) == (0o644, 0, 0, 0)

@@ -91,7 +91,8 @@ def test_zero_coefficients_of_other_models_get_absolute_ranges() -> None:
 
 def test_ranges_take_the_models_names_and_the_error_lists_them(kitti02: Calibration) -> None:
     assert parse_ranges("k3=-0.01:0.01", kitti02)["k3"] == Range(-0.01, 0.01, False)
-    with pytest.raises(AppdgenError, match="xi=.*NAME a parameter of the radtan model: fx, fy, cx, cy, k1, k2, p1, p2, k3"):
+    with pytest.raises(AppdgenError,
+                       match="xi=.*NAME a parameter of the radtan model: fx, fy, cx, cy, k1, k2, p1, p2, k3"):
         parse_ranges("xi=-1%:1%", kitti02)
 
 

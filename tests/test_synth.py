@@ -85,7 +85,8 @@ def test_synthesize_writes_deterministic_pngs_in_any_order(tmp_path):
     again = synthesize(KITTI_2011_09_26["02"], 3, tmp_path / "b", seed=9, scale=0.25)
     assert [p.read_bytes() for p in paths] == [p.read_bytes() for p in again]
     # Frame 2 does not depend on frames 0 and 1 having been made first.
-    np.testing.assert_array_equal(cv2.imread(str(paths[2])), render_frame(KITTI_2011_09_26["02"], frame_rng(9, 2), scale=0.25))
+    np.testing.assert_array_equal(cv2.imread(str(paths[2])),
+                                  render_frame(KITTI_2011_09_26["02"], frame_rng(9, 2), scale=0.25))
     assert synthesize(KITTI_2011_09_26["02"], 0, tmp_path / "c", seed=9) == []
     with pytest.raises(AppdgenError, match="frames"):
         synthesize(KITTI_2011_09_26["02"], -1, tmp_path / "d", seed=9)
@@ -94,7 +95,8 @@ def test_synthesize_writes_deterministic_pngs_in_any_order(tmp_path):
 def test_canvas_holds_every_sample():
     map_x, map_y, K, (w, h) = _lens_maps(KITTI_2011_09_26["02"])  # one canvas, not a cube
     assert map_x.min() >= 2 and map_y.min() >= 2 and map_x.max() <= w - 3 and map_y.max() <= h - 3
-    assert w > KITTI_2011_09_26["02"].width and h > KITTI_2011_09_26["02"].height  # barrel distortion: the undistorted view is wider
+    # barrel distortion: the undistorted view is wider
+    assert w > KITTI_2011_09_26["02"].width and h > KITTI_2011_09_26["02"].height
 
 
 def _blurred(image: np.ndarray) -> np.ndarray:
@@ -247,7 +249,7 @@ def test_offset_moves_the_camera_sideways_in_the_same_street():
     # 0.3 m along the camera's own x axis (its first row of world→camera R), nothing else moved
     assert np.linalg.norm(step) == pytest.approx(0.3) and still.camera.R[0] @ step == pytest.approx(0.3)
     assert len(moved.groups) == len(still.groups) and moved.noise_seed == still.noise_seed
-    for (box_a, ops_a), (box_b, ops_b) in zip(still.groups, moved.groups):
+    for (box_a, _), (box_b, _) in zip(still.groups, moved.groups, strict=True):
         np.testing.assert_array_equal(box_a, box_b)  # the same world drawn
 
 

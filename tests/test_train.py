@@ -575,3 +575,16 @@ def test_predict_says_what_the_network_was_trained_on(bend_run, shards, capsys):
     assert json.loads(capsys.readouterr().out)["summary"]["target"] == "bend"
     main(["predict", "--ckpt", str(bend_run / "last.pt"), str(folder), "--device", "cpu"])
     assert "running median of bend_pct" in capsys.readouterr().out
+
+
+def test_the_detection_threshold_has_one_owner() -> None:
+    from appdgen.detect import DEFAULT_THRESHOLD_PCT
+    from train import evaluate, predict, scoring
+    from train.cli import cli
+
+    assert scoring.THRESHOLD is DEFAULT_THRESHOLD_PCT
+    for command in ("evaluate", "predict"):
+        options = {o.name: o for o in cli.commands[command].params}
+        assert options["threshold"].default is DEFAULT_THRESHOLD_PCT, command
+    functions = (evaluate.evaluate, evaluate.evaluate_frames, predict.predict_stream)
+    assert all(DEFAULT_THRESHOLD_PCT in f.__defaults__ for f in functions)

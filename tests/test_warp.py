@@ -90,7 +90,7 @@ def test_batch_rows_take_their_own_calibration():
     rects = [rectify(c, size) for c in (calib, other)]
     frames = [noise(calib.size, 4), noise(calib.size, 5)]
     out = to_images(rectify_batch(to_tensor(frames), [calib, other], [r.new_camera_matrix for r in rects], size))
-    for got, frame, rect in zip(out, frames, rects):
+    for got, frame, rect in zip(out, frames, rects, strict=True):
         assert np.abs(got.astype(int) - cv2_cubic(frame, rect.map_x, rect.map_y)).max() <= 1
     map_x, _ = maps_batch([calib, other], [r.new_camera_matrix for r in rects], size, dtype=torch.float64)
     assert map_x.dtype == torch.float64 and np.abs(map_x[1].numpy() - rects[1].map_x).max() <= 2e-4

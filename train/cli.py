@@ -10,6 +10,7 @@ import click
 
 from appdgen.cli.base import recording_options, stack_options, start_plot
 from appdgen.dataset.layout import TARGETS
+from appdgen.detect import DEFAULT_THRESHOLD_PCT
 from appdgen.errors import AppdgenError
 from train.errors import TrainError
 from train.nets import MODELS
@@ -135,7 +136,8 @@ def fit(**kw) -> None:
 @click.option("--split", default="test", show_default=True)
 @click.option("--json", "json_path", help="Also write the metrics to this JSON file.")
 @click.option("--plot", "plot_path", help="Predicted-vs-true APPD plot (PNG; needs the 'plot' extra: matplotlib).")
-@click.option("--threshold", default=1.0, show_default=True, help="APPD % above which a camera needs recalibration.")
+@click.option("--threshold", default=DEFAULT_THRESHOLD_PCT, show_default=True,
+              help="APPD % above which a camera needs recalibration (appdgen detect's).")
 @click.option("--batch", default=64, show_default=True, type=click.IntRange(1))
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(0))
 @DEVICE
@@ -171,7 +173,7 @@ def evaluate(ckpt: str, shards: str | None, frames: str | None, length: int, seq
 @click.option("--max-fov", type=float, metavar="DEG",
               help="Crop bound for --calib [default: the training build's max_fov, recorded by fit; a different "
                    "value is refused, so this is for checkpoints that do not record one].")
-@click.option("--threshold", default=1.0, show_default=True,
+@click.option("--threshold", default=DEFAULT_THRESHOLD_PCT, show_default=True,
               help="Recalibrate when the running median exceeds this APPD %.")
 @click.option("--window", default=9, show_default=True, type=click.IntRange(1), help="Running-median length (images).")
 @click.option("--batch", default=32, show_default=True, type=click.IntRange(1))

@@ -42,7 +42,7 @@ def write_json(path: str, result: dict) -> None:
 
 
 def evaluate(ckpt_path: str, shards: str, split: str, json_path: str | None = None, plot_path: str | None = None,
-             threshold: float = 1.0, batch: int = 64, workers: int = 1, device: str = "auto",
+             threshold: float = DETECTION_THRESHOLD, batch: int = 64, workers: int = 1, device: str = "auto",
              precision: str = "fp32") -> dict:
     """Run the checkpoint over one split of the shards; returns (and optionally writes) the metrics."""
     dev = runtime.pick_device(device)
@@ -91,7 +91,7 @@ def frames_recipe(ckpt: dict, ckpt_path: str, frames: str):
 
 
 def evaluate_frames(ckpt_path: str, frames: str, length: int = 10, sequences: int | None = None,
-                    draw_seed: int | None = None, json_path: str | None = None, threshold: float = 1.0,
+                    draw_seed: int | None = None, json_path: str | None = None, threshold: float = DETECTION_THRESHOLD,
                     batch: int = 32, device: str = "auto", precision: str = "fp32") -> dict:
     """Score a fit --online checkpoint on raw frames it has not seen, per frame and per sequence: sequence k is
     frames k·length … k·length + length − 1 (in file order) under one miscalibration, the fixed-seed draw

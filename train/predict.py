@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import torch
 
+from appdgen.detect import DEFAULT_THRESHOLD_PCT
 from appdgen.errors import AppdgenError
 from appdgen.sources.decode import as_channels, read_image
 from appdgen.sources.files import IMAGE_SUFFIXES, list_images
@@ -191,7 +192,7 @@ def trained_target(ckpt_path: str) -> str:
 
 
 def predict_stream(ckpt_path: str, inputs: list[str], calib: str | None = None, camera: str | None = None,
-                   threshold: float = 1.0, window: int = 9, batch: int = 32, resize: bool = False,
+                   threshold: float = DEFAULT_THRESHOLD_PCT, window: int = 9, batch: int = 32, resize: bool = False,
                    device: str = "auto", max_fov: float | None = None, frames: PredictFrames | None = None
                    ) -> Iterator[Prediction]:
     """predict's predictions as each batch is done (a recording is read once, frame by frame)."""

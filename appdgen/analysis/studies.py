@@ -126,7 +126,7 @@ def sample_calibrations(calib: Calibration, count: int, rng: np.random.Generator
     while len(draws) < count:
         t = rng.uniform(lo, hi)
         try:
-            other = calib.perturb(**dict(zip(names, t.tolist())))
+            other = calib.perturb(**dict(zip(names, t.tolist(), strict=True)))
             draws.append((t, other, valid_region(other, max_fov=max_fov)))
         except AppdgenError:  # fold-over or no valid region: not a usable calibration, draw again
             skipped += 1
@@ -203,7 +203,7 @@ def drift_matrix(calibs: Sequence[Calibration], size: tuple[int, int] | None = N
     """Symmetric matrix of APPD (raw px) between every pair of calibrations of one raw size (any lens models)."""
     if len({c.size for c in calibs}) > 1:
         names = labels or [str(i) for i in range(len(calibs))]
-        listed = ", ".join(f"{name} {c.width}x{c.height}" for name, c in zip(names, calibs))
+        listed = ", ".join(f"{name} {c.width}x{c.height}" for name, c in zip(names, calibs, strict=True))
         raise AppdgenError(f"calibrations differ in raw size: {listed}")
     rects = [rectify(c, size, max_fov=max_fov) for c in calibs]
     matrix = np.zeros((len(rects), len(rects)))

@@ -59,7 +59,7 @@ class Calibration:
         for field, value in (("width", width), ("height", height), ("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)):
             object.__setattr__(self, field, value)
         object.__setattr__(self, "model", model)
-        object.__setattr__(self, "coeffs", tuple(_finite(n, v) for n, v in zip(names, values)))
+        object.__setattr__(self, "coeffs", tuple(_finite(n, v) for n, v in zip(names, values, strict=True)))
         self._validate()
         lens.get(model).validate(self.coeffs)
 
@@ -139,7 +139,7 @@ class Calibration:
     def params(self) -> dict[str, float]:
         """The parameters by name: intrinsics (pixels), then the model's coefficients."""
         return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
-                **dict(zip(lens.params(self.model), self.coeffs))}
+                **dict(zip(lens.params(self.model), self.coeffs, strict=True))}
 
     def to_dict(self) -> dict[str, Any]:
         """Size, model and parameters as a flat JSON-ready dict."""

@@ -8,7 +8,8 @@ from appdgen.calib.calibration import Calibration
 from appdgen.calib.formats import load
 
 #: The published KITTI raw 2011_09_26 calib_cam_to_cam.txt (public KITTI data, www.cvlibs.net), as installed.
-DEFAULT_CALIB_PATH: Path = Path(str(importlib.resources.files("appdgen") / "data" / "kitti_2011_09_26_calib_cam_to_cam.txt"))
+DEFAULT_CALIB_PATH: Path = Path(str(importlib.resources.files("appdgen") / "data"
+                                     / "kitti_2011_09_26_calib_cam_to_cam.txt"))
 
 
 def default_calibration(camera: str | int = "02") -> Calibration:

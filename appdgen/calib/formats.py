@@ -77,7 +77,8 @@ def calibration_topic(path: PathLike, camera: str | int | None = None) -> str | 
 
 
 def native_suffix(calib: Calibration) -> str:
-    """The extension to save calib under: .yaml where OpenCV YAML holds its model (radtan, rational, kb4), else .json."""
+    """The extension to save calib under: .yaml where OpenCV YAML holds its model (radtan, rational, kb4), else
+    .json."""
     return ".yaml" if calib.model in opencv.YAML_MODELS else ".json"
 
 
@@ -185,7 +186,8 @@ def _select(names: list[str], camera: str | int | None) -> str:
     if camera is None:
         if len(names) == 1:
             return names[0]
-        raise AppdgenError(f"{len(names)} cameras; choose one with --camera (camera= in Python); available: {_listing(names)}")
+        raise AppdgenError(f"{len(names)} cameras; choose one with --camera (camera= in Python); "
+                           f"available: {_listing(names)}")
     wanted = str(camera).strip()
     number = _camera_number(wanted)
     matches = [n for n in names if n == wanted] or [n for n in names if number and _camera_number(n) == number]

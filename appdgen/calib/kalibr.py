@@ -70,7 +70,7 @@ def _camera(camera: Any) -> Parts:
     if isinstance(intrinsics, list) and len(intrinsics) != len(names):
         raise AppdgenError(f"intrinsics: camera_model {camera_model} expects {len(names)} numbers "
                            f"[{', '.join(names)}], got {len(intrinsics)}")
-    values = dict(zip(names, numbers("intrinsics", intrinsics, (len(names),))))
+    values = dict(zip(names, numbers("intrinsics", intrinsics, (len(names),)), strict=True))
     key = "distortion_coeffs" if "distortion_coeffs" in cam else "distortion_coefficients"
     distortion_coeffs = numbers(f"{key} ({distortion})", need(cam, key) if count else cam.get(key, []), (count,))
     coeffs = np.array([values[name] for name in leading]) if leading else distortion_coeffs

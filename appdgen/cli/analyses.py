@@ -142,13 +142,14 @@ def reproj(calib_path, camera, samples, scenario, seed, points, size, max_fov, c
     if plot_path:
         from appdgen.analysis.plots import plot_reproj
 
-        plot_reproj(Path(plot_path), study, f"APPD against reprojection error: {samples} calibrations sampled around {source}")
+        plot_reproj(Path(plot_path), study,
+                    f"APPD against reprojection error: {samples} calibrations sampled around {source}")
 
 
 def file_labels(paths: Sequence[str]) -> list[str]:
     """File names; the parent folder's name for files sharing a base name (KITTI <day>/calib_cam_to_cam.txt)."""
     names = [Path(p).name for p in paths]
-    labels = [Path(p).resolve().parent.name if names.count(n) > 1 else n for p, n in zip(paths, names)]
+    labels = [Path(p).resolve().parent.name if names.count(n) > 1 else n for p, n in zip(paths, names, strict=True)]
     return labels if len(set(labels)) == len(labels) else list(paths)
 
 
@@ -170,8 +171,8 @@ def rounding_note(labels: Sequence[str], calibs: Sequence[Calibration], size: tu
     from appdgen.geometry.appd import appd_px
     from appdgen.geometry.maps import rectify as rectify_calibration
 
-    rounded = [label for label, c in zip(labels, calibs) if round_significant(c, 3) == c]
-    full = [(label, c) for label, c in zip(labels, calibs) if label not in rounded]
+    rounded = [label for label, c in zip(labels, calibs, strict=True) if round_significant(c, 3) == c]
+    full = [(label, c) for label, c in zip(labels, calibs, strict=True) if label not in rounded]
     if not rounded:
         return None
     text = f"{', '.join(rounded)}: values have at most 3 significant digits, so part of their APPD is rounding"
@@ -239,7 +240,7 @@ def echo_drift(camera: str, table: dict, labels: Sequence[str]) -> None:
     w, h = table["size"]
     for key, unit in (("appd_px", "raw px"), ("appd_pct", f"% of the {table['diagonal_px']:.1f} px diagonal")):
         click.echo(f"camera {camera}: APPD in {unit} (output {w}x{h})")
-        rows = [[label, *(f"{v:.3f}" for v in row)] for label, row in zip(labels, table[key])]
+        rows = [[label, *(f"{v:.3f}" for v in row)] for label, row in zip(labels, table[key], strict=True)]
         click.echo(format_table(["", *labels], rows) + "\n")
     if table["note"]:
         note(f"camera {camera}: {table['note']}")

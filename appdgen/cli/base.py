@@ -199,7 +199,7 @@ def format_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     cells = [list(header), *map(list, rows)]
     widths = [max(len(row[i]) for row in cells) for i in range(len(header))]
     return "\n".join("  ".join(cell.ljust(w) if i == 0 else cell.rjust(w)
-                                for i, (cell, w) in enumerate(zip(row, widths))) for row in cells)
+                                for i, (cell, w) in enumerate(zip(row, widths, strict=False))) for row in cells)
 
 
 def write_csv(path: str, header: Sequence[str], rows: Iterable[Sequence[object]]) -> None:

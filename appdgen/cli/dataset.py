@@ -69,7 +69,8 @@ VERIFY_LINES = 20  # problems printed; the rest are counted
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://host:8786.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @fail_cleanly
-def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, image_format, encoder, shard_size, jobs, seed,
+def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, image_format, encoder, shard_size, jobs,
+          seed,
           ranges, appd_max, zero_fraction, max_fov, interp, split_by, skip_bad, topic, every, min_interval, start, end,
           channels_choice, resume, overwrite, backend, scheduler, quiet):
     """Generate rectified samples with APPD labels: WebDataset shards + labels.parquet + build.json."""
@@ -92,7 +93,8 @@ def build(calib_path, camera, images_spec, out_dir, samples, per_image, size, im
         resumed = recorded_encoder(Path(out_dir)) if resume and image_format == "png" else None
         encoder = resumed or DEFAULT_ENCODER
     inputs = resolve_inputs(images_spec, calib_path, camera, split_by, topic,
-                            FrameChoice(every, min_interval, start, end), skip_bad, check_grey=channels_choice == "auto")
+                            FrameChoice(every, min_interval, start, end), skip_bad,
+                            check_grey=channels_choice == "auto")
     reference, images, skipped = inputs.reference, inputs.images, inputs.skipped
     total = samples if samples is not None else len(images) * (per_image if per_image is not None else 10)
     config = BuildConfig(

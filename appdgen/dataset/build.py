@@ -52,7 +52,8 @@ def build(config: BuildConfig, out: Path, jobs: int = 1, backend: str = "loky", 
         return writer.finish(config.shard_count, made, lambda stats: summary(
             config, stats, list(made), time.perf_counter() - start, command, skipped or []))
     except OSError as exc:
-        raise AppdgenError(f"--out {out}: write failed ({exc.strerror or exc}); fix it and rerun with --resume") from None
+        reason = exc.strerror or exc
+        raise AppdgenError(f"--out {out}: write failed ({reason}); fix it and rerun with --resume") from None
     except UnreachableError as exc:
         raise AppdgenError(f"{exc}, then rebuild with --overwrite (--resume refuses other options)") from None
     except RawImageError as exc:

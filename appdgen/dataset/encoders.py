@@ -131,7 +131,8 @@ def sub_filtered_rows(image: np.ndarray) -> np.ndarray:
 
 class LibdeflateEncoder(Encoder):
     """PNG written here (Sub filter on every row) and compressed by libdeflate (PyPI `deflate`, which bundles it in
-    its wheels) at level 1: grey and colour, 3-4x faster than OpenCV's level 1 (2.9x at 348x128, 3.8x at 1392x512) for files of the same size
+    its wheels) at level 1: grey and colour, 3-4x faster than OpenCV's level 1 (2.9x at 348x128, 3.8x at 1392x512)
+    for files of the same size
     (docs/performance.md). libdeflate's output is fixed for a given libdeflate version: its CPU-specific code is in
     the checksums and the match finder's table set-up, which do not change the stream (its maintainer,
     ebiggers/libdeflate#400); tests/test_encoders.py pins the bytes.

@@ -122,7 +122,7 @@ def known_schemas(params: Sequence[str], sources: bool = False) -> tuple[pa.Sche
 
 def crop_columns(x0: float, y0: float, x1: float, y1: float) -> dict[str, float]:
     """A crop rectangle (normalized coordinates) as its CROP_COLUMNS values."""
-    return dict(zip(CROP_COLUMNS, (float(x0), float(y0), float(x1), float(y1))))
+    return dict(zip(CROP_COLUMNS, (float(x0), float(y0), float(x1), float(y1)), strict=True))
 
 
 def source_columns(source: str, topic: str, timestamp_ns: int, frame: int) -> dict:
@@ -135,7 +135,7 @@ def bend_columns(bend_px: float, bend_pct: float, shift_x_px: float, shift_y_px:
                  scale: float) -> dict[str, float]:
     """A warp's split (raw px, % of the diagonal, unitless scale) as its BEND_COLUMNS values."""
     return dict(zip(BEND_COLUMNS, (float(bend_px), float(bend_pct), float(shift_x_px), float(shift_y_px),
-                                   float(scale))))
+                                   float(scale)), strict=True))
 
 
 def member_record(row: dict) -> dict:

@@ -171,10 +171,10 @@ class BuildConfig:
 
     def renamed(self, record: dict) -> "BuildConfig":
         """This config with the names a plan.json recorded (same content, so the resumed rows match the rest)."""
-        sources = dict(zip((s for s, _ in self.recordings), record.get("recordings", ())))
+        sources = dict(zip((s for s, _ in self.recordings), record.get("recordings", ()), strict=False))
         images = tuple(dataclasses.replace(i, name=name, split=split, frame=i.frame and dataclasses.replace(
                            i.frame, source=sources.get(i.frame.source, i.frame.source)))
-                       for i, (name, split) in zip(self.images, record["images"]))
+                       for i, (name, split) in zip(self.images, record["images"], strict=False))
         recordings = tuple((sources.get(s, s), h) for s, h in self.recordings)
         return dataclasses.replace(self, calib_path=record["calibration"]["path"], images=images,
                                    recordings=recordings, known_plan=self.plan())

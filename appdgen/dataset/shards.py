@@ -89,7 +89,7 @@ def write_fragment(path: Path, rows: list[dict], params: Sequence[str], stats: S
     atomically; returns the table written (the index can take it from memory)."""
     pa, _ = _arrow()
     schema = label_schema(params, sources)
-    columns = [pa.array([r[n] for r in rows], f.type) for n, f in zip(schema.names, schema)]
+    columns = [pa.array([r[n] for r in rows], f.type) for n, f in zip(schema.names, schema, strict=True)]
     table = pa.Table.from_arrays(columns, schema=schema.with_metadata({STATS_KEY: stats.to_json()}))
     _write_table(path, table)
     return table

@@ -121,7 +121,7 @@ def target_labels(labels: Mapping[str, list] | None, target: str) -> dict[str, f
     """key → the target's label from read_labels' columns, for a stream to use instead of the json members' appd_pct;
     None for appd (the members hold it)."""
     column = TARGETS[target]
-    return None if column == LABEL_COLUMN or labels is None else dict(zip(labels["key"], labels[column]))
+    return None if column == LABEL_COLUMN or labels is None else dict(zip(labels["key"], labels[column], strict=True))
 
 
 def decode_sample(data: bytes, ext: str, where: str) -> np.ndarray:

@@ -31,7 +31,8 @@ def summary(config: BuildConfig, shard_stats: list[ShardStats], built: list[int]
         "shards": [s.listing() for s in shard_stats],
         "sampler": {"evaluations_per_sample": sum(s.evaluations for s in shard_stats) / max(drawn, 1),
                     "seconds_per_sample": sum(s.stage_seconds["sample"] for s in shard_stats) / max(drawn, 1)},
-        "timings": {"wall_seconds": seconds, "shards_built": len(made), "shards_resumed": config.shard_count - len(made),
+        "timings": {"wall_seconds": seconds, "shards_built": len(made),
+                    "shards_resumed": config.shard_count - len(made),
                     "samples_per_second": sum(s.samples for s in made) / seconds if seconds > 0 else None,
                     "mb_written": sum(s.bytes for s in made) / 1e6,
                     # Worker seconds per stage over this run's shards (all workers together).

@@ -109,7 +109,7 @@ def _verify_index(table: pa.Table, info: dict, report: Report) -> None:
     for key, n in counts(table["key"]).items():
         if n > 1:
             report.add(INDEX, f"key {key} appears in {n} rows")
-    for key, index, shard in zip(table["key"].to_pylist(), indices, table["shard"].to_pylist()):
+    for key, index, shard in zip(table["key"].to_pylist(), indices, table["shard"].to_pylist(), strict=True):
         if key != sample_key(index):
             report.add(INDEX, f"row with key {key} has sample_index {index}")
         elif shard != shard_name(index // shard_size):
@@ -298,7 +298,7 @@ def _verify_found(path: Path, expected: dict[str, dict], seen: dict[str, None], 
         report.add(path.name, f"{len(missing) - 3} more members missing")
     order = [name for name in expected if name in seen]
     if not missing and list(seen) != order:
-        first = next(a for a, b in zip(seen, order) if a != b)
+        first = next(a for a, b in zip(seen, order, strict=False) if a != b)
         report.add(f"{path.name}: {first}", "out of order (expected key.json then the image, by sample index)")
 
 

@@ -381,7 +381,8 @@ def _slide_box_of(bounds: _Boundaries, crop: Crop) -> tuple[float, float, float,
 
 def _check_crop(calib: Calibration, crop: Crop, r_fold: float) -> None:
     """Guard: R's border maps inside the frame and the lens is monotone over R (else AppdgenError)."""
-    if max(np.hypot([crop.x0, crop.x1, crop.x0, crop.x1], [crop.y0, crop.y0, crop.y1, crop.y1])) >= r_fold * (1 - 1e-4):  # touching the fold circle, to grid accuracy
+    corners = np.hypot([crop.x0, crop.x1, crop.x0, crop.x1], [crop.y0, crop.y0, crop.y1, crop.y1])
+    if max(corners) >= r_fold * (1 - 1e-4):  # touching the fold circle, to grid accuracy
         raise _fold_error(calib, r_fold)
     t = np.linspace(0.0, 1.0, 512)
     x = np.concatenate([crop.x0 + t * (crop.x1 - crop.x0)] * 2 + [np.full_like(t, crop.x0), np.full_like(t, crop.x1)])
@@ -402,7 +403,7 @@ def _fold_error(calib: Calibration, r_fold: float) -> AppdgenError:
     return AppdgenError(
         f"distortion folds over inside the {calib.width}x{calib.height} frame (the {calib.model} model stops being "
         f"one-to-one at r={r_fold:.4g}, where the crop needs it): "
-        + " ".join(f"{n}={v:g}" for n, v in zip(calib.param_names[4:], calib.coeffs))
+        + " ".join(f"{n}={v:g}" for n, v in zip(calib.param_names[4:], calib.coeffs, strict=True))
     )
 
 

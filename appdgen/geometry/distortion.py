@@ -10,7 +10,8 @@ from appdgen.lens.numerics import newton_plane, plane_failures
 
 
 def distort_normalized(x: np.ndarray, y: np.ndarray, calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates, through calib's model."""
+    """Undistorted normalized coordinates (unitless, z = 1) → distorted normalized coordinates, through calib's
+    model."""
     return lens.get(calib.model).project(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64), calib.coeffs)
 
 
@@ -68,7 +69,7 @@ def _failure_message(failed: np.ndarray, folded: np.ndarray, outside: np.ndarray
         why = "Newton's method did not converge"
     return (
         f"distortion cannot be inverted at {int(failed.sum())} point(s), e.g. raw pixel ({u:.1f}, {v:.1f}): {why} "
-        f"({calib.model}: {', '.join(f'{n}={v:g}' for n, v in zip(calib.param_names[4:], calib.coeffs))})"
+        f"({calib.model}: {', '.join(f'{n}={v:g}' for n, v in zip(calib.param_names[4:], calib.coeffs, strict=True))})"
     )
 
 

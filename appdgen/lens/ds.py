@@ -68,11 +68,13 @@ def validate(coeffs: tuple[float, ...]) -> None:
     """α in [0, 1] and ξ > −1, where the double sphere is a camera model (else AppdgenError)."""
     xi, alpha = coeffs
     if not (0.0 <= alpha <= 1.0 and xi > -1.0):
-        raise AppdgenError(f"calibration: double sphere needs 0 <= alpha <= 1 and xi > -1, got xi={xi:g} alpha={alpha:g}")
+        raise AppdgenError(f"calibration: double sphere needs 0 <= alpha <= 1 and xi > -1, "
+                           f"got xi={xi:g} alpha={alpha:g}")
 
 
 def unproject_rays(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...]) -> tuple[np.ndarray, ...]:
-    """Distorted normalized coordinates → unit rays (X, Y, Z), closed form (paper eq. 47–49); NaN outside the image of the domain."""
+    """Distorted normalized coordinates → unit rays (X, Y, Z), closed form (paper eq. 47–49); NaN outside the image
+    of the domain."""
     xi, alpha = coeffs
     mx, my = np.asarray(mx, dtype=np.float64), np.asarray(my, dtype=np.float64)
     r2 = mx * mx + my * my
@@ -88,6 +90,7 @@ def plane_guess(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...]) -> tu
     return plane_of_rays(*unproject_rays(mx, my, coeffs))
 
 
-def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray,
+         size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """float32 (map_x, map_y) for each output pixel of a pinhole camera new_K at size (w, h), in numpy."""
     return scale_maps(K, lambda q: _scale(q, coeffs), new_K, size)

@@ -1,4 +1,5 @@
-"""Enhanced unified camera model (Khomutenko, Garcia, Martinet 2016): α, β. m = (x, y)/(α ρ + (1 − α) z), ρ = √(β r² + z²)."""
+"""Enhanced unified camera model (Khomutenko, Garcia, Martinet 2016): α, β.
+m = (x, y)/(α ρ + (1 − α) z), ρ = √(β r² + z²)."""
 from __future__ import annotations
 
 import functools
@@ -77,6 +78,7 @@ def plane_guess(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...]) -> tu
     return plane_of_rays(*unproject_rays(mx, my, coeffs))
 
 
-def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray,
+         size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """float32 (map_x, map_y) for each output pixel of a pinhole camera new_K at size (w, h), in numpy."""
     return scale_maps(K, lambda q: _scale(q, coeffs), new_K, size)

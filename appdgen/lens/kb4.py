@@ -79,7 +79,8 @@ def validate(coeffs: tuple[float, ...]) -> None:
     """Any finite coefficients are a Kannala–Brandt lens (its fold bounds the valid domain)."""
 
 
-def unproject_rays(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...], iterations: int = 30) -> tuple[np.ndarray, ...]:
+def unproject_rays(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...],
+                   iterations: int = 30) -> tuple[np.ndarray, ...]:
     """Distorted normalized coordinates → unit rays (X, Y, Z), by Newton on θ; NaN past the fold (θ may exceed 90°)."""
     mx, my = np.asarray(mx, dtype=np.float64), np.asarray(my, dtype=np.float64)
     md = np.hypot(mx, my)
@@ -99,7 +100,8 @@ def plane_guess(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...]) -> tu
     return plane_of_rays(*unproject_rays(mx, my, coeffs))
 
 
-def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray,
+         size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """float32 (map_x, map_y) for each output pixel of a pinhole camera new_K at size (w, h), in numpy."""
     # cv2.fisheye.initUndistortRectifyMap gives the same maps (tested) in 5.5x the time (4.0 vs 0.73 ms at 512x512,
     # benchmarks/bench_geometry.py on idle cores, docs/performance.md).

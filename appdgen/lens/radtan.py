@@ -100,6 +100,7 @@ def unproject_rays(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...]) ->
     return plane_rays(project, jacobian, fold_radius(coeffs), coeffs, mx, my)
 
 
-def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray,
+         size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """float32 (map_x, map_y) raw-pixel positions for each output pixel of a pinhole camera new_K at size (w, h)."""
     return cv2.initUndistortRectifyMap(K, np.asarray(coeffs, dtype=np.float64), None, new_K, size, cv2.CV_32FC1)

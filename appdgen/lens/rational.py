@@ -1,4 +1,5 @@
-"""Pinhole + OpenCV's rational model with thin prism: k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 (8-coefficient files: s = 0)."""
+"""Pinhole + OpenCV's rational model with thin prism: k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 (8-coefficient files:
+s = 0)."""
 from __future__ import annotations
 
 import functools
@@ -90,6 +91,7 @@ def unproject_rays(mx: np.ndarray, my: np.ndarray, coeffs: tuple[float, ...]) ->
     return plane_rays(project, jacobian, fold_radius(coeffs), coeffs, mx, my)
 
 
-def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def maps(K: np.ndarray, coeffs: tuple[float, ...], new_K: np.ndarray,
+         size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """float32 (map_x, map_y) for each output pixel of a pinhole camera new_K at size (w, h), by OpenCV (12 coeffs)."""
     return cv2.initUndistortRectifyMap(K, np.asarray(coeffs, dtype=np.float64), None, new_K, size, cv2.CV_32FC1)

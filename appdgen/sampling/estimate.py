@@ -73,7 +73,7 @@ class CoarseEstimator:
         box = self.box
         ref = np.array(slide_box(self.reference, SEARCH_NODES, self.max_fov))
         slopes = np.zeros((len(box.names), 2, 4))
-        for j, ends in enumerate(zip(box.low, box.high)):
+        for j, ends in enumerate(zip(box.low, box.high, strict=True)):
             for side, end in enumerate(ends):
                 if end != 0:
                     step = np.zeros(len(box.names))

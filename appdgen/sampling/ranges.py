@@ -60,7 +60,7 @@ def default_ranges(reference: Calibration) -> dict[str, Range]:
         return paper_ranges()
     zero = ZERO_RANGES.get(reference.model, {})
     ranges = {name: Range(*PAPER_RANGES[name]) for name in (*FOCAL, *PRINCIPAL)}
-    for name, value in zip(reference.param_names[4:], reference.coeffs):
+    for name, value in zip(reference.param_names[4:], reference.coeffs, strict=True):
         ranges[name] = Range(*COEFFICIENT_RANGE) if value != 0 or name not in zero else Range(*zero[name], False)
     return ranges
 
@@ -119,7 +119,7 @@ class ParameterBox:
             raise AppdgenError(f"--ranges: {', '.join(odd)} not matching the {reference.model} model's "
                                f"parameters ({', '.join(names)})")
         values = parameter_vector(reference)
-        bounds = [ranges[n].offsets(v) for n, v in zip(names, values)]
+        bounds = [ranges[n].offsets(v) for n, v in zip(names, values, strict=True)]
         box = cls(reference, names, values, np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds]))
         if not (box.high - box.low > 0).any():
             raise AppdgenError("--ranges: every range is empty, so no perturbation is possible")
@@ -127,7 +127,7 @@ class ParameterBox:
 
     def calibration(self, offsets: np.ndarray) -> Calibration:
         """The reference moved by parameter offsets (parameter units)."""
-        return self.reference.replace(**dict(zip(self.names, (self.base + offsets).tolist())))
+        return self.reference.replace(**dict(zip(self.names, (self.base + offsets).tolist(), strict=True)))
 
     def offsets(self, calib: Calibration) -> np.ndarray:
         """A calibration's offsets from the reference (parameter units)."""

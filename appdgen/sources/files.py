@@ -1,4 +1,5 @@
-"""Image files as sources: folders, globs and list files → a sorted list of images with their split, checked by their headers."""
+"""Image files as sources: folders, globs and list files → a sorted list of images with their split, checked by
+their headers."""
 from __future__ import annotations
 
 import glob

@@ -18,6 +18,9 @@ from appdgen.sources.headers import image_size
 from appdgen.sources.raw import RawReader
 from appdgen.sources.recordings import FrameChoice
 
+#: Every frame of a recording (the default choice).
+EVERY_FRAME = FrameChoice()
+
 
 @dataclass(frozen=True)
 class Inputs:
@@ -33,7 +36,7 @@ class Inputs:
 
 
 def resolve_inputs(spec: str, calib_path: str, camera: str | None = None, split_by: str = "none",
-                   topic: str | None = None, choice: FrameChoice = FrameChoice(), skip_bad: bool = False,
+                   topic: str | None = None, choice: FrameChoice = EVERY_FRAME, skip_bad: bool = False,
                    check_grey: bool = True) -> Inputs:
     """The inputs an --images spec names (a folder, glob or list of images, or recordings) with the calibration
     file's camera for them; every image checked against the camera's size (check_grey: also whether all are grey)."""

@@ -27,7 +27,8 @@ from appdgen.synth.raster import Canvas
 from appdgen.synth.street import CAR, MOUNTS, Mount, Scene, random_street
 from appdgen.util.distribute import run_unordered
 
-__all__ = ["CAR", "MOUNTS", "Mount", "calibration_name", "frame_name", "frame_rng", "render_frame", "render_ideal", "scale_calibration",
+__all__ = ["CAR", "MOUNTS", "Mount", "calibration_name", "frame_name", "frame_rng", "render_frame", "render_ideal",
+           "scale_calibration",
            "synthesize"]
 
 MARGIN = 3  # canvas pixels beyond the outermost sample: room for bilinear taps and anti-aliased edges
@@ -82,7 +83,8 @@ def _lens_maps(calib: Calibration) -> tuple | CubeMaps:
     ray under MAX_CANVAS_ANGLE within MAX_CANVAS_AREA, else a cube around the camera (cubemap)."""
     u, v = _pixel_grid(calib)
     x, y = undistort_pixels(u, v, calib, on_failure="nan")
-    if np.all(np.isfinite(x) & np.isfinite(y)) and np.max(x * x + y * y) < math.tan(math.radians(MAX_CANVAS_ANGLE)) ** 2:
+    reach = math.tan(math.radians(MAX_CANVAS_ANGLE)) ** 2
+    if np.all(np.isfinite(x) & np.isfinite(y)) and np.max(x * x + y * y) < reach:
         maps = _canvas_maps(calib, x, y)
         if maps is not None:
             return maps

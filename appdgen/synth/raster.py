@@ -200,13 +200,14 @@ class Canvas:
         seen = np.all(cam @ self.planes[:, :3].T + self.planes[:, 3] >= -reach, axis=1) & (cam[:, 2] > NEAR)
         pixels = self._fixed(self._project(cam[seen]))
         radii = np.round(radii[seen] * self.K[0, 0] / cam[seen, 2] * (1 << SHIFT)).astype(int)
-        for (x, y), r in zip(pixels, radii):
+        for (x, y), r in zip(pixels, radii, strict=True):
             cv2.circle(self.image, (int(x), int(y)), int(r), _bgr(color), -1, cv2.LINE_AA, SHIFT)
 
     def sky(self, zenith: np.ndarray, horizon: np.ndarray, step: int = 9) -> None:
         """Fill with a sky gradient by elevation angle: horizon colour at 0°, zenith colour at ≥ 45°."""
         h, w = self.image.shape[:2]
-        u, v = np.meshgrid(np.arange(0, w + step, step, dtype=np.float64), np.arange(0, h + step, step, dtype=np.float64))
+        u, v = np.meshgrid(np.arange(0, w + step, step, dtype=np.float64),
+                           np.arange(0, h + step, step, dtype=np.float64))
         rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(self.K).T @ self.camera.R  # world directions
         elevation = -rays[..., 1] / np.linalg.norm(rays, axis=-1)  # world y points down
         t = np.clip(elevation / np.sin(np.pi / 4), 0.0, 1.0)[..., None] ** 0.6

@@ -77,7 +77,8 @@ def write_video(path: Path, frames: Iterable[np.ndarray], fps: int = 10, codec: 
     count = 0
     with av.open(str(path), "w") as container:
         stream = None
-        for count, image in enumerate(frames, 1):
+        for image in frames:
+            count += 1
             if image.ndim == 2:
                 image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
             if stream is None:
@@ -118,7 +119,7 @@ def frames_as(paths: list[Path], out: Path, kind: str, mono: bool) -> Path:
         if mono:
             from appdgen.dataset.images import write_image
 
-            for path, image in zip(paths, frames()):
+            for path, image in zip(paths, frames(), strict=False):
                 write_image(path, image)
         return out
     target = recording_target(out, kind)

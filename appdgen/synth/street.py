@@ -139,7 +139,7 @@ class Street:
         self.parking = (rng.random() < 0.5, rng.random() < 0.5)  # a parking strip outside the lanes, per side
         strip = rng.uniform(2.0, 2.5)
         # Road edges at x = −edge[0], +edge[1]; the driving lanes end at ±lanes·lane.
-        self.edge = tuple(n * lane + strip * p for n, p in zip(self.lanes, self.parking))
+        self.edge = tuple(n * lane + strip * p for n, p in zip(self.lanes, self.parking, strict=False))
         self.walk = (rng.uniform(1.5, 5.0), rng.uniform(1.5, 5.0))
         self.curb = rng.uniform(0.08, 0.18)
         self.end = rng.uniform(90.0, 320.0) if rng.random() < 0.5 else None
@@ -460,7 +460,7 @@ class Street:
         ops.append(("fill_many", (rects(origin, ACROSS, [0.0, x1 - x0, height - 0.7, height]), metal)))
         bays = np.linspace(0.0, x1 - x0, int((x1 - x0) // 1.5) + 1)
         low, high = origin + (height - 0.7) * UP, origin + height * UP
-        zigzag = np.array([[low + a * ACROSS, high + b * ACROSS] for a, b in zip(bays[:-1], bays[1:])])
+        zigzag = np.array([[low + a * ACROSS, high + b * ACROSS] for a, b in zip(bays[:-1], bays[1:], strict=True)])
         ops.append(("lines", (zigzag, metal * 0.6, 1)))
         board = hsv(rng.choice([0.33, 0.6]), rng.uniform(0.6, 0.9), rng.uniform(0.35, 0.6))
         white = self.lit(hsv(0.0, 0.0, 0.9), -ALONG)

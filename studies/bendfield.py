@@ -41,7 +41,7 @@ from appdgen.detect import Baseline, Detector, Evidence, Reading
 from appdgen.sources.frames import RawImage
 from studies.detector import ARMS, AXIS_SEEDS, INTERP, TEST_SYNTH, DetectorOptions, listed, reference, synth_all
 from studies.detector import table as comparison_table
-from train.scoring import LABELS, SEQUENCE_SEED, THRESHOLD, auc, sequence_metrics
+from train.scoring import LABELS, MEAN_DRAWS, SEQUENCE_SEED, THRESHOLD, auc, prior_draws, sequence_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
@@ -65,7 +65,7 @@ class BendOptions:
     length: int = 10
     offset: float = 0.3  # metres: the viewpoint axis
     scale: float = 1.0  # synthetic streets' scale (1: the comparison's full stream)
-    stats: int = 300  # draws whose mean label is the mean predictor
+    stats: int = MEAN_DRAWS  # draws whose mean label is the mean predictor
     real: str = str(SHARED / "real" / "euroc_micro_cam1")  # data/ and sensor.yaml; "" for no real axis
     baseline: int = 30  # first real frames: the baseline under the file's calibration
     window: int = 10  # sequential test: frames pooled at every frame
@@ -215,7 +215,7 @@ def reading(r: Reading) -> dict:
 def label_mean(scene: Scene, o: BendOptions) -> dict[str, float]:
     """The mean predictor per target: the mean label of the prior's draws (o.seed, 0 … o.stats − 1)."""
     sampler = scene.recipe.sampler()
-    draws = [sampler.draw(o.seed, i) for i in range(o.stats)]
+    draws = prior_draws(sampler, o.seed, o.stats)
     return {t: float(np.mean([LABELS[t](scene.recipe, d) for d in draws])) for t in TARGETS}
 
 

@@ -7,7 +7,8 @@ and without a baseline from the first frames, scored against the truth.
 Per set and baseline: MAE of the windows' APPD readings / the mean predictor's (the mean label of the prior's
 draws), the truth inside 2 sd (coverage, over every belief's windows), true-file windows flagged, beliefs above
 0.5 % flagged (windows), the median sd, and frames/s. Evidence is cached per belief under OUT/cache (delete it after
-a change to appdgen/detect/edges.py). Uses the product's public API only: Detector.evidence, save_baseline, read.
+a change to appdgen/detect/edges.py). Uses the product's public API (Detector.evidence, save_baseline, read) and the
+mean predictor's draws of train.scoring.
 """
 from __future__ import annotations
 
@@ -25,10 +26,10 @@ import numpy as np
 import appdgen
 from appdgen.detect import DEFAULT_THRESHOLD_PCT, Detector
 from appdgen.sampling.sampler import Sampler
+from train.scoring import prior_draws
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 SEED = 77  # the beliefs' draws
-STATS = 300  # prior draws (seed 0) whose mean label is the mean predictor, as studies.bendfield's
 
 
 @dataclass(frozen=True)
@@ -62,9 +63,8 @@ def beliefs(truth, count: int) -> list[tuple[object, float]]:
 
 
 def mean_label(truth) -> float:
-    """The mean predictor: the mean APPD (%) of STATS prior draws."""
-    sampler = Sampler(truth)
-    return float(np.mean([appdgen.appd(truth, sampler.draw(0, i).calib)[1] for i in range(STATS)]))
+    """The mean predictor: the mean APPD (%) of the prior's draws (train.scoring.prior_draws)."""
+    return float(np.mean([appdgen.appd(truth, d.calib)[1] for d in prior_draws(Sampler(truth))]))
 
 
 def cached(path: Path, make):

@@ -18,8 +18,16 @@ N_BINS = 10
 SEQUENCE_SEED = 7003
 #: % APPD: the detection threshold whose AUC the sequence metrics report (the detector's, owned by appdgen.detect).
 THRESHOLD = DEFAULT_THRESHOLD_PCT
+#: The detector studies' mean predictor is the mean label of the prior's draws (MEAN_SEED, 0 … MEAN_DRAWS − 1).
+MEAN_SEED = 0
+MEAN_DRAWS = 300
 #: A label: its value of a draw under a recipe (train.online.recipe.PairRecipe), % of the raw diagonal.
 Label = Callable[[object, object], object]
+
+
+def prior_draws(sampler, seed: int = MEAN_SEED, count: int = MEAN_DRAWS) -> list:
+    """The sampler's draws (seed, 0 … count − 1) whose mean label is the detector studies' mean predictor."""
+    return [sampler.draw(seed, i) for i in range(count)]
 
 
 def target_label(target: str) -> Label:

@@ -88,6 +88,8 @@ def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
     start = time.perf_counter()
     baseline = ref.save_baseline(base_ev, f"{name} frames {s.baseline[0]}-{s.baseline[1] - 1}")
     save_seconds = time.perf_counter() - start
+    camera_map = None if baseline.camera_map is None else baseline.camera_map.to_dict()
+    log(f"{name} baseline: {save_seconds:.1f} s, camera map {camera_map}")
     mean = cached(out / "cache" / f"{name}-mean.pkl", lambda: mean_label(truth))
     rows = []
     for k, (belief, appd) in enumerate(beliefs(truth, count)):
@@ -102,7 +104,8 @@ def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
         log(f"{name} belief {k} (APPD {appd:.2f} %): " + " ".join(
             f"{x['appd']:.2f}±{x['sd']:.2f}{'*' if x['verdict'] == 'miscalibrated' else ''}"
             if x["appd"] is not None else "abstain" for x in rows if x["belief"] == k))
-    return {"set": name, "mean": mean, "rows": rows, "save_baseline_seconds": save_seconds}
+    return {"set": name, "mean": mean, "rows": rows, "save_baseline_seconds": save_seconds,
+            "camera_map": camera_map}
 
 
 def scores(result: dict, with_baseline: bool) -> dict:

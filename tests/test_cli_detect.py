@@ -82,7 +82,7 @@ def test_the_json_holds_every_frame_in_input_order_and_the_library_s_readings(st
     frames, sequences, summary = document["frames"], document["sequences"], document["summary"]
     assert [f["image"] for f in frames] == [p.relative_to(street.root).as_posix() for p in street.frames]
     assert set(frames[0]) == {"image", "appd_pct", "appd_sd_pct", "bend_pct", "bend_sd_pct", "p_above", "verdict",
-                              "segments", "reason"}
+                              "segments", "reason", "raw_appd_pct", "raw_appd_sd_pct"}
     detector = Detector(load(street.calib))
     evidence = [detector.evidence(read_image(p, 1), p.name) for p in street.frames]
     for entry, one in zip(frames, evidence, strict=True):
@@ -172,6 +172,9 @@ def test_the_baseline_round_trip_reads_as_the_library_does_with_that_file(street
     assert against["sequences"][0]["appd_pct"] == expected["appd_pct"] is not None
     assert against["sequences"][0]["offsets"] == expected["offsets"]
     assert against["sequences"][0]["appd_pct"] != plain["sequences"][0]["appd_pct"]  # the file took effect
+    # The file holds the camera's map, learnt at --save-baseline; the reading is the map's, the raw one kept.
+    assert Baseline.from_json(baseline).camera_map is not None
+    assert against["sequences"][0]["raw_appd_pct"] == expected["raw_appd_pct"] is not None
 
 
 def damaged(street: Street, baseline: Path, tmp_path: Path, case: str) -> list[str]:
@@ -198,6 +201,12 @@ def damaged(street: Street, baseline: Path, tmp_path: Path, case: str) -> list[s
         document["reference"] = scale_calibration(load(street.calib), 0.5).to_dict()
         (tmp_path / "small.json").write_text(json.dumps(document))
         return ["--calib", calib, "--images", images, "--baseline", str(tmp_path / "small.json")]
+    if case == "old baseline":  # the street camera's baseline as version 1 wrote it: no camera map
+        document = json.loads(baseline.read_text())
+        document["version"] = 1
+        del document["camera_map"]
+        (tmp_path / "old.json").write_text(json.dumps(document))
+        return ["--calib", calib, "--images", images, "--baseline", str(tmp_path / "old.json")]
     if case == "baseline and save-baseline":
         return ["--calib", calib, "--images", images, "--baseline", "a.json", "--save-baseline", "b.json"]
     if case == "baseline of a perturbed belief":
@@ -217,7 +226,8 @@ def damaged(street: Street, baseline: Path, tmp_path: Path, case: str) -> list[s
 
 BAD = {"missing calibration": "none.yaml", "unreadable calibration": "junk.yaml", "wrong camera": "07",
        "no frames": "empty", "frame of another size": "x.png", "bad baseline": "b.json",
-       "foreign baseline": "174x64", "baseline and save-baseline": "--save-baseline",
+       "foreign baseline": "174x64", "old baseline": "old.json: baseline version 1, but this appdgen reads version 2",
+       "baseline and save-baseline": "--save-baseline",
        "baseline of a perturbed belief": "--set/--perturb", "unknown parameter": "'f=0.02'", "sequence 0": "--sequence",
        "threshold 0": "--threshold", "threshold negative": "--threshold", "unwritable json": "out.json"}
 

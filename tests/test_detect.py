@@ -13,7 +13,8 @@ from appdgen.calib.defaults import default_calibration
 from appdgen.detect import Baseline, Detector
 from appdgen.detect.detector import HOVER, Evidence
 from appdgen.detect.edges import edge_points
-from appdgen.detect.model import build_model
+from appdgen.detect.model import belief_crop, build_model
+from appdgen.detect.simulate import KINDS, fit_map, warp_evidence, warp_points
 from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import appd
 from appdgen.geometry.bend import output_rest, output_warp, warp_field
@@ -129,15 +130,27 @@ def test_wrong_size_frame_is_one_line_error(truth: Detector):
 
 def test_baseline_round_trip(truth: Detector, frames, tmp_path, camera: Calibration):
     ev = [truth.evidence(f) for f in frames[:4]]
-    base = truth.save_baseline(ev, "frames 0-3")
+    seen = []
+    base = truth.save_baseline(ev, "frames 0-3", simulated=3, progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(1, 3), (2, 3), (3, 3)]  # the progress bar's steps: one per simulated belief
     assert np.abs(base.field).max() > 0.01  # the scene reads as some field: there is a bias to remove
     path = tmp_path / "b.json"
     base.to_json(path)
+    assert json.loads(path.read_text())["version"] == 2
     back = Baseline.from_json(path)
     assert back.reference == camera and back.frames == 4 and back.source == "frames 0-3"
     np.testing.assert_allclose(back.field, base.field, atol=1e-5)
+    # The camera's map, learnt from the 3 simulated beliefs and REF itself, is written and read back.
+    cmap = back.camera_map
+    assert cmap is not None and cmap == base.camera_map and cmap.beliefs == 4 and cmap.kind in KINDS
+    assert cmap.error <= cmap.identity_error + 1e-12 and cmap.spread >= 0
     # The same frames against their own baseline: the scene's bias is gone, the field reads as zero.
-    plain, based = truth.read(ev), truth.read(ev, baseline=back)
+    plain, based = truth.read(ev), truth.read(ev, baseline=back, camera_map=False)
+    mapped = truth.read(ev, baseline=back)
+    assert based.raw_appd_pct is None and mapped.raw_appd_pct == pytest.approx(based.appd_pct)
+    assert (mapped.appd_pct, mapped.appd_sd_pct, mapped.p_above) == pytest.approx(
+        cmap.apply(based.appd_pct, based.appd_sd_pct, based.threshold_pct))
+    assert mapped.to_dict()["raw_appd_pct"] == mapped.raw_appd_pct
     c_plain = truth.estimate(ev).c
     c_based = truth.estimate(ev, back).c
     zero = -truth.model.mean.ravel() @ truth.model.basis.reshape(len(c_plain), -1).T  # coefficients of f = 0
@@ -151,7 +164,10 @@ def test_baseline_round_trip(truth: Detector, frames, tmp_path, camera: Calibrat
 
 
 @pytest.mark.parametrize("content, problem", [("{", "not a JSON file"), ('{"format": "x"}', "not an appdgen detect"),
-                                              ('{"format": "appdgen-detect-baseline", "version": 1}', "malformed")])
+                                              ('{"format": "appdgen-detect-baseline", "version": 2}', "malformed"),
+                                              ('{"format": "appdgen-detect-baseline", "version": 1}',
+                                               "baseline version 1, but this appdgen reads version 2 .*save it "
+                                               "again with appdgen detect --save-baseline")])
 def test_bad_baseline_files_are_one_line_errors(tmp_path, content, problem):
     path = tmp_path / "b.json"
     path.write_text(content)
@@ -225,3 +241,45 @@ def test_evidence_of_a_repeated_frame_is_a_hover(truth, frames):
     one = truth.evidence(frames[0])
     reading = truth.read([Evidence(str(i), one.segments, one.points) for i in range(5)])
     assert reading.reason is not None and reading.reason.startswith(HOVER) and reading.verdict != "miscalibrated"
+
+
+def test_the_camera_map_is_the_one_that_predicts_held_out_beliefs_best():
+    rng = np.random.default_rng(3)
+    truth = np.repeat(np.linspace(0.0, 1.5, 10), 4)
+    group = np.repeat(np.arange(10), 4)
+    sd = np.full(truth.size, 0.05)
+    shrunk = fit_map(0.2 + 0.5 * truth + rng.normal(0, 0.03, truth.size), sd, truth, group)
+    assert shrunk.kind == "linear" and shrunk.slope == pytest.approx(2.0, rel=0.15)
+    assert shrunk.error < 0.5 * shrunk.identity_error
+    honest = fit_map(truth + rng.normal(0, 0.03, truth.size), sd, truth, group)
+    assert honest.kind == "identity" and honest.spread < 0.05
+    mean, out_sd, p = honest.apply(1.0, 0.1, 0.5)
+    assert (mean, out_sd) == (1.0, pytest.approx(np.hypot(0.1, honest.spread))) and p > 0.99
+
+
+def test_evidence_warped_to_the_same_rectification_is_unchanged(truth: Detector, frames, camera: Calibration):
+    pts = truth.evidence(frames[0]).points
+    crop = belief_crop(camera, None)
+    same = warp_points(pts, camera, crop, camera, crop)
+    assert same.segments == pts.segments
+    np.testing.assert_allclose(same.u, pts.u, atol=1e-6)
+    np.testing.assert_allclose(same.centre, pts.centre, atol=1e-6)
+    assert np.abs(same.e).max() < np.abs(pts.e).max() + 1.0  # offsets from the refitted line, same size
+
+
+
+def test_simulated_evidence_reads_as_frames_rectified_under_the_belief(camera: Calibration, frames, cache, truth):
+    # The camera's map rests on this: REF's edge points moved into belief b's rectification solve as b's own
+    # rectified frames do (the frames rectified and searched again under b: an independent computation), and far
+    # closer than REF's points left where they are.
+    belief = camera.replace(fx=camera.fx * 1.05, cx=camera.cx + 8)
+    det = Detector(belief, cache_dir=cache, library_draws=DRAWS)
+    actual_ev = [det.evidence(f) for f in frames]
+    ref_ev = [truth.evidence(f) for f in frames]
+    sim_ev = warp_evidence(ref_ev, camera, belief_crop(camera, None), belief, belief_crop(belief, None))
+    actual, sim, unmoved = det.estimate(actual_ev), det.estimate(sim_ev), det.estimate(ref_ev)
+    sd = np.sqrt(np.diag(actual.cov))
+    assert sim.segments > 0.8 * actual.segments
+    assert np.abs((sim.c - actual.c) / sd).max() < 0.5 * np.abs((unmoved.c - actual.c) / sd).max()
+    a, b = det.read(actual_ev), det.read(sim_ev)
+    assert abs(a.appd_pct - b.appd_pct) < 0.5 * a.appd_sd_pct and abs(a.bend_pct - b.bend_pct) < 0.02

@@ -32,7 +32,8 @@ from appdgen.detect import DEFAULT_SEQUENCE, DEFAULT_THRESHOLD_PCT
 from appdgen.errors import AppdgenError
 
 #: A reading's fields in a frame's JSON object (after `image`); a sequence's add `offsets`.
-FRAME_FIELDS = ("appd_pct", "appd_sd_pct", "bend_pct", "bend_sd_pct", "p_above", "verdict", "segments", "reason")
+FRAME_FIELDS = ("appd_pct", "appd_sd_pct", "bend_pct", "bend_sd_pct", "p_above", "verdict", "segments", "reason",
+                "raw_appd_pct", "raw_appd_sd_pct")
 SEQUENCE_FIELDS = (*FRAME_FIELDS, "offsets")
 MISCALIBRATED = "miscalibrated"  # the verdict counted as a flag
 SENSITIVITY_WIDTH = 348  # px: output width of the per-parameter APPD rates (KITTI at quarter size)
@@ -289,7 +290,13 @@ def detect(calib_path, camera, images_spec, sequence, threshold_pct, baseline_pa
     finally:
         bar.close()
     if save_path:
-        detector.save_baseline(kept, source=images_spec).to_json(targets["--save-baseline"])
+        from appdgen.detect.simulate import SIMULATED
+        sim_bar = Progress(SIMULATED, unit="simulated beliefs (the camera's map)", enabled=not quiet)
+        try:
+            saved = detector.save_baseline(kept, source=images_spec, progress=lambda done, _: sim_bar.update(done))
+        finally:
+            sim_bar.close()
+        saved.to_json(targets["--save-baseline"])
     options = {"images": images_spec, "set": list(sets), "perturb": list(perturbs), "max_fov": max_fov,
                "sequence": sequence, "threshold_pct": threshold_pct, "baseline": baseline_path,
                "saved_baseline": save_path}

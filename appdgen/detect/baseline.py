@@ -11,12 +11,13 @@ import numpy as np
 
 from appdgen.calib.calibration import Calibration
 from appdgen.detect.model import belief_crop, field_lookup
+from appdgen.detect.simulate import CameraMap
 from appdgen.errors import AppdgenError
 from appdgen.geometry.bend import output_warp
 from appdgen.util.atomic import write_file
 
 FORMAT = "appdgen-detect-baseline"
-VERSION = 1
+VERSION = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,13 +32,20 @@ class Baseline:
     frames: int
     segments: int
     source: str
+    camera_map: CameraMap | None = None  # None: readings against it are not mapped (too few frames to learn one)
 
     @classmethod
     def record(cls, reference: Calibration, max_fov: float | None, grid_u: np.ndarray, grid_v: np.ndarray,
-               field: np.ndarray, frames: int, segments: int, source: str) -> Baseline:
-        """A baseline from a reading under REF (field: the field read, output px)."""
+               field: np.ndarray, frames: int, segments: int, source: str,
+               camera_map: CameraMap | None = None) -> Baseline:
+        """A baseline from a reading under REF (field: the field read, output px) and the camera's map."""
         return cls(reference, max_fov, np.asarray(grid_u, float), np.asarray(grid_v, float),
-                   np.asarray(field, float), frames, segments, source)
+                   np.asarray(field, float), frames, segments, source, camera_map)
+
+    def with_map(self, camera_map: CameraMap | None) -> Baseline:
+        """This baseline with the camera's map."""
+        return Baseline(self.reference, self.max_fov, self.grid_u, self.grid_v, self.field, self.frames,
+                        self.segments, self.source, camera_map)
 
     def check(self, belief: Calibration) -> None:
         """AppdgenError unless the belief is of this baseline's camera (raw size and lens model)."""
@@ -60,7 +68,8 @@ class Baseline:
         doc = {"format": FORMAT, "version": VERSION, "source": self.source, "frames": self.frames,
                "segments": self.segments, "max_fov": self.max_fov, "reference": self.reference.to_dict(),
                "grid_u": self.grid_u.tolist(), "grid_v": self.grid_v.tolist(),
-               "field": np.round(self.field, 5).tolist()}
+               "field": np.round(self.field, 5).tolist(),
+               "camera_map": None if self.camera_map is None else self.camera_map.to_dict()}
         write_file(Path(path), (json.dumps(doc) + "\n").encode())
 
     @classmethod
@@ -76,7 +85,8 @@ class Baseline:
         if not isinstance(doc, dict) or doc.get("format") != FORMAT:
             raise AppdgenError(f"{path}: not an appdgen detect baseline (no \"format\": \"{FORMAT}\")")
         if doc.get("version") != VERSION:
-            raise AppdgenError(f"{path}: baseline version {doc.get('version')!r}, this appdgen reads {VERSION}")
+            raise AppdgenError(f"{path}: baseline version {doc.get('version')!r}, but this appdgen reads version "
+                               f"{VERSION} (with the camera's map): save it again with appdgen detect --save-baseline")
         try:
             ref = dict(doc["reference"])
             width, height, model = ref.pop("width"), ref.pop("height"), ref.pop("model")
@@ -89,8 +99,9 @@ class Baseline:
                 raise ValueError("field shape")
             if not np.isfinite(field).all():
                 raise ValueError("non-finite field")
+            camera_map = None if doc["camera_map"] is None else CameraMap.from_dict(doc["camera_map"])
             return cls(reference, None if max_fov is None else float(max_fov), grid_u, grid_v, field,
-                       int(doc["frames"]), int(doc["segments"]), str(doc["source"]))
+                       int(doc["frames"]), int(doc["segments"]), str(doc["source"]), camera_map)
         except AppdgenError as exc:
             raise AppdgenError(f"{path}: {exc}") from None
         except (KeyError, TypeError, ValueError, AttributeError) as exc:

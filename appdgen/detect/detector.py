@@ -22,6 +22,7 @@ from appdgen.detect.edges import EdgeParams, EdgePoints, edge_points
 from appdgen.detect.errormodel import MIN_SEGMENTS, SCENE_FLOOR, likelihood
 from appdgen.detect.model import FieldModel, belief_crop, cached_model
 from appdgen.detect.posterior import posterior
+from appdgen.detect.simulate import SIMULATED, learn_map
 from appdgen.detect.solve import Design, Estimate, SolveParams, pool, solve
 from appdgen.detect.tracks import track_ids, travel
 from appdgen.errors import AppdgenError
@@ -63,6 +64,8 @@ class Reading:
     offsets: dict[str, tuple[float, float]]
     reason: str | None
     can_flag: bool = True  # False: the evidence cannot tell the scene from the lens (a hover without a baseline)
+    raw_appd_pct: float | None = None  # before the baseline's camera map (None: no map applied)
+    raw_appd_sd_pct: float | None = None
 
     @property
     def verdict(self) -> str:
@@ -80,7 +83,8 @@ class Reading:
                 "appd_sd_pct": self.appd_sd_pct, "bend_pct": self.bend_pct, "bend_sd_pct": self.bend_sd_pct,
                 "p_above": self.p_above, "threshold_pct": self.threshold_pct,
                 "offsets": {k: {"mean": m, "sd": s} for k, (m, s) in self.offsets.items()},
-                "reason": self.reason, "verdict": self.verdict}
+                "reason": self.reason, "verdict": self.verdict, "raw_appd_pct": self.raw_appd_pct,
+                "raw_appd_sd_pct": self.raw_appd_sd_pct}
 
 
 def abstention(frames: int, segments: int, threshold_pct: float, reason: str) -> Reading:
@@ -96,6 +100,8 @@ class Detector:
         start = time.perf_counter()
         self.belief = belief
         self.max_fov = max_fov
+        self.cache_dir = cache_dir
+        self.library_draws = library_draws
         self.model: FieldModel
         self.model, self.cached = cached_model(belief, max_fov, cache_dir, progress, library_draws)
         self.rect = rectify(belief, crop=belief_crop(belief, max_fov))
@@ -141,8 +147,9 @@ class Detector:
         return solve(pool(designs, ids), self.model.var, self.solve_params), travel(used, ids)
 
     def read(self, evidence: Sequence[Evidence], baseline: Baseline | None = None,
-             threshold_pct: float = DEFAULT_THRESHOLD_PCT) -> Reading:
-        """One frame or a sequence pooled in one solve; abstains when the evidence is too weak."""
+             threshold_pct: float = DEFAULT_THRESHOLD_PCT, camera_map: bool = True) -> Reading:
+        """One frame or a sequence pooled in one solve; abstains when the evidence is too weak. Against a baseline
+        with a camera map (and camera_map), APPD, its sd and p_above are the map's (the posterior's kept as raw_*)."""
         if baseline is not None:
             baseline.check(self.belief)
         frames, found = len(evidence), sum(e.segments for e in evidence)
@@ -157,13 +164,35 @@ class Detector:
                                                                            strict=True)}
         hover = frames > 1 and moved < HOVER_PX
         reason = (HOVER if baseline is not None else f"{HOVER} (no flag without a baseline)") if hover else None
-        return Reading(frames, est.segments, post.appd, post.appd_sd, post.bend, post.bend_sd, post.p_above,
-                       threshold_pct, offsets, reason, not hover or baseline is not None)
+        appd, appd_sd, p_above, raw, raw_sd = post.appd, post.appd_sd, post.p_above, None, None
+        if camera_map and baseline is not None and baseline.camera_map is not None:
+            raw, raw_sd = appd, appd_sd
+            appd, appd_sd, p_above = baseline.camera_map.apply(appd, appd_sd, threshold_pct)
+        return Reading(frames, est.segments, appd, appd_sd, post.bend, post.bend_sd, p_above,
+                       threshold_pct, offsets, reason, not hover or baseline is not None, raw, raw_sd)
 
-    def save_baseline(self, evidence: Sequence[Evidence], source: str) -> Baseline:
-        """How this camera and its scenery read under the calibration it was calibrated with (belief = REF)."""
+    def save_baseline(self, evidence: Sequence[Evidence], source: str, simulated: int = SIMULATED,
+                      progress: Callable[[int, int], None] | None = None) -> Baseline:
+        """How this camera and its scenery read under the calibration it was calibrated with (belief = REF), and
+        the camera's map from baseline readings to APPD learnt from `simulated` beliefs around REF read on these
+        frames (detect.simulate; 0: no map); progress(done, simulated) after each."""
+        baseline = self._baseline(evidence, source)
+        if baseline is None:
+            est = self.estimate(evidence)
+            raise AppdgenError(f"{source}: too few straight segments for a baseline ({est.segments} < {MIN_SEGMENTS})")
+        if simulated <= 0:
+            return baseline
+
+        def detector_for(calib: Calibration) -> Detector:
+            return Detector(calib, self.max_fov, cache_dir=self.cache_dir, library_draws=self.library_draws)
+
+        return baseline.with_map(learn_map(self, evidence, lambda part: self._baseline(part, source), detector_for,
+                                           simulated, progress))
+
+    def _baseline(self, evidence: Sequence[Evidence], source: str) -> Baseline | None:
+        """The baseline field of these frames, without a map; None when they have too few segments."""
         est = self.estimate(evidence)
         if est.segments < MIN_SEGMENTS:
-            raise AppdgenError(f"{source}: too few straight segments for a baseline ({est.segments} < {MIN_SEGMENTS})")
+            return None
         return Baseline.record(self.belief, self.max_fov, self.model.grid_u, self.model.grid_v,
                                self.model.field_of(est.c), len(evidence), est.segments, source)

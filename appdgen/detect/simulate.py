@@ -1,0 +1,192 @@
+"""A belief's evidence simulated from the evidence of frames rectified under the camera's true calibration (REF),
+without rectifying or detecting again: the same scene seen through belief b's rectification shows the raw pixel
+that REF's output pixel p shows at b's output pixel q = K̂b·undistort_b(M̂ref(p)) (geometry.bend.output_warp with
+the roles swapped). Each edge point is moved there and each segment's line, normal, arc positions and offsets are
+recomputed from the moved points (the solve removes each segment's own line, so the line only needs to be close).
+Points that leave b's output image are dropped, as are segments left with too few points.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from appdgen.calib.calibration import Calibration
+from appdgen.detect.edges import EdgeParams, EdgePoints, empty_points
+from appdgen.detect.model import belief_crop
+from appdgen.errors import AppdgenError
+from appdgen.geometry.appd import appd
+from appdgen.geometry.bend import output_warp
+from appdgen.sampling.reach import UnreachableError
+from appdgen.sampling.sampler import Sampler
+
+
+def warp_points(points: EdgePoints, reference: Calibration, reference_crop, belief: Calibration, belief_crop,
+                min_points: int = EdgeParams().min_points) -> EdgePoints:
+    """REF-rectified edge points as belief b's rectification shows them (belief output px)."""
+    if points.segments == 0:
+        return points
+    qu, qv = output_warp(belief, belief_crop, reference, reference_crop, points.u, points.v)
+    w, h = belief.size
+    keep = np.isfinite(qu) & np.isfinite(qv) & (qu >= 2) & (qu <= w - 3) & (qv >= 2) & (qv <= h - 3)
+    nseg = points.segments
+    counts = np.bincount(points.seg, keep.astype(int), nseg)
+    good = counts >= min_points
+    keep &= good[points.seg]
+    if not keep.any():
+        return empty_points()
+    new = np.cumsum(good) - 1
+    sg = new[points.seg[keep]]
+    ns = int(good.sum())
+    u, v = qu[keep], qv[keep]
+    cnt = np.bincount(sg, minlength=ns).astype(float)
+    cu, cv = np.bincount(sg, u, ns) / cnt, np.bincount(sg, v, ns) / cnt
+    du, dv = u - cu[sg], v - cv[sg]
+    # each segment's direction: the leading axis of its moved points' scatter, signed as the old direction
+    suu, svv, suv = np.bincount(sg, du * du, ns), np.bincount(sg, dv * dv, ns), np.bincount(sg, du * dv, ns)
+    angle = 0.5 * np.arctan2(2 * suv, suu - svv)
+    t = np.column_stack([np.cos(angle), np.sin(angle)])
+    old_n = points.normal[good]
+    n = np.column_stack([-t[:, 1], t[:, 0]])
+    flip = np.where((n * old_n).sum(1) < 0, -1.0, 1.0)
+    n, t = n * flip[:, None], t * flip[:, None]
+    s = du * t[sg, 0] + dv * t[sg, 1]
+    e = du * n[sg, 0] + dv * n[sg, 1]
+    lo, hi = np.full(ns, np.inf), np.full(ns, -np.inf)
+    np.minimum.at(lo, sg, s)
+    np.maximum.at(hi, sg, s)
+    mid = np.bincount(sg, s, ns) / cnt
+    return EdgePoints(u, v, s - mid[sg], e, sg, n, np.column_stack([cu, cv]), hi - lo, points.contrast[good])
+
+
+def warp_evidence(evidence: Sequence, reference: Calibration, reference_crop, belief: Calibration, belief_crop
+                  ) -> list:
+    """Each frame's Evidence (under REF) as belief b's rectification would show it."""
+    out = []
+    for ev in evidence:
+        pts = warp_points(ev.points, reference, reference_crop, belief, belief_crop)
+        out.append(replace(ev, segments=pts.segments, points=pts, seconds=0.0))
+    return out
+
+
+#: Simulated beliefs a baseline reads on its own frames to learn the camera's map (each builds its field model).
+SIMULATED = 12
+MAP_SEED = 4243  # simulated belief i is Sampler(REF).draw(MAP_SEED, i): what `appdgen build` makes from REF
+FOLDS = 2  # the good frames in contiguous parts: each part is read against the baseline of the others
+KINDS = ("identity", "shift", "linear")  # the maps tried; the one with the least leave-one-belief-out error wins
+
+
+@dataclass(frozen=True)
+class CameraMap:
+    """This camera's map from a baseline reading's APPD r (%) to APPD: max(0, intercept + slope·r), with the spread
+    its posterior sd does not explain (%), learnt from simulated beliefs read on the baseline's own frames."""
+
+    kind: str
+    intercept: float
+    slope: float
+    spread: float
+    beliefs: int
+    windows: int
+    error: float  # leave-one-belief-out mean absolute error of the map (%)
+    identity_error: float  # the same of the raw reading (%)
+
+    def apply(self, appd: float, sd: float, threshold_pct: float) -> tuple[float, float, float]:
+        """(APPD, sd, p_above) of a reading mapped: sd = sqrt((slope·sd)² + spread²), p_above of a normal."""
+        mean = max(0.0, self.intercept + self.slope * appd)
+        out_sd = float(np.hypot(self.slope * sd, self.spread))
+        z = (threshold_pct - mean) / max(out_sd, 1e-9)
+        return float(mean), out_sd, float(0.5 * math.erfc(z / math.sqrt(2.0)))
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in ("kind", "intercept", "slope", "spread", "beliefs", "windows", "error",
+                                              "identity_error")}
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> CameraMap:
+        if doc["kind"] not in KINDS:
+            raise ValueError(f"unknown camera map {doc['kind']!r}")
+        return cls(str(doc["kind"]), float(doc["intercept"]), float(doc["slope"]), float(doc["spread"]),
+                   int(doc["beliefs"]), int(doc["windows"]), float(doc["error"]), float(doc["identity_error"]))
+
+
+def _fit(kind: str, read: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """(intercept, slope) of one kind of map, least squares (slope ≥ 0)."""
+    if kind == "identity" or read.size < 2:
+        return 0.0, 1.0
+    if kind == "shift":
+        return float(np.mean(truth - read)), 1.0
+    x = np.column_stack([np.ones_like(read), read])
+    a, b = np.linalg.lstsq(x, truth, rcond=None)[0]
+    if b < 0:
+        return float(truth.mean()), 0.0
+    return float(a), float(b)
+
+
+def fit_map(read: np.ndarray, sd: np.ndarray, truth: np.ndarray, group: np.ndarray) -> CameraMap:
+    """The map (of KINDS) with the least leave-one-belief-out mean absolute error, refitted on every window, and
+    the spread of its held-out residuals that the readings' own sds do not explain."""
+    read, sd, truth, group = (np.asarray(a, float) for a in (read, sd, truth, group))
+    held = {}
+    for kind in KINDS:
+        pred = np.empty_like(read)
+        for g in np.unique(group):
+            out = group == g
+            a, b = _fit(kind, read[~out], truth[~out])
+            pred[out] = np.maximum(0.0, a + b * read[out])
+        held[kind] = pred
+    errors = {k: float(np.abs(p - truth).mean()) for k, p in held.items()}
+    kind = min(KINDS, key=lambda k: (errors[k], KINDS.index(k)))
+    a, b = _fit(kind, read, truth)
+    resid = held[kind] - truth
+    spread = float(np.sqrt(max(0.0, np.mean(resid ** 2) - np.mean((b * sd) ** 2))))
+    return CameraMap(kind, a, b, spread, int(np.unique(group).size), int(read.size), errors[kind],
+                     errors["identity"])
+
+
+def learn_map(reference_detector, evidence: Sequence, baseline_of, detector_for, count: int = SIMULATED,
+              progress: Callable[[int, int], None] | None = None) -> CameraMap | None:
+    """Read `count` simulated beliefs around REF (and REF itself) on the good frames, each part of FOLDS against the
+    baseline of the other parts (baseline_of(frames) → Baseline; detector_for(calib) → a Detector of that belief),
+    and fit the camera's map; None when the frames are too few to part."""
+    ref, max_fov = reference_detector.belief, reference_detector.max_fov
+    evidence = list(evidence)
+    if len(evidence) < 2 * FOLDS:
+        return None
+    edges = np.linspace(0, len(evidence), FOLDS + 1).round().astype(int)
+    parts = [(edges[f], edges[f + 1]) for f in range(FOLDS)]
+    folds = [baseline_of(evidence[:a] + evidence[b:]) for a, b in parts]
+    sampler = Sampler(ref, max_fov=max_fov)
+    ref_crop = belief_crop(ref, max_fov)
+    rows: list[tuple[float, float, float, int]] = []
+
+    def read_all(det, sim, truth_pct, group):
+        for (a, b), bl in zip(parts, folds, strict=True):
+            if bl is None:
+                continue
+            r = det.read(sim[a:b], bl, camera_map=False)
+            if r.appd_pct is not None:
+                rows.append((r.appd_pct, r.appd_sd_pct, truth_pct, group))
+
+    read_all(reference_detector, evidence, 0.0, 0)
+    done, i = 0, 0
+    while done < count and i < 20 * count:
+        i += 1
+        try:
+            d = sampler.draw(MAP_SEED, i - 1)
+            if d.is_reference:
+                continue
+            truth_pct = float(appd(ref, d.calib, max_fov=max_fov)[1])
+            det = detector_for(d.calib)
+        except (UnreachableError, AppdgenError):
+            continue
+        sim = warp_evidence(evidence, ref, ref_crop, d.calib, belief_crop(d.calib, max_fov))
+        done += 1
+        read_all(det, sim, truth_pct, done)
+        if progress is not None:
+            progress(done, count)
+    if len({g for *_, g in rows}) < 3:
+        return None
+    read, sd, truth, group = (np.array(c) for c in zip(*rows, strict=True))
+    return fit_map(read, sd, truth, group)

@@ -195,7 +195,7 @@ def edge_points(img: np.ndarray, prm: EdgeParams = EdgeParams()) -> EdgePoints:
     peak = grouped_median(np.where(ok, b, 0.0), seg, nseg)  # (zeros pull it down: a lenient threshold)
     ok &= b >= prm.weak * peak[seg]
     keep = _robust_points(s, e, seg, ok, nseg, prm)
-    return _collect(bu, bv, s, e, seg, n, polarity * peak, keep, prm)
+    return collect_points(bu, bv, s, e, seg, n, polarity * peak, keep, prm.min_points)
 
 
 def _robust_points(s: np.ndarray, e: np.ndarray, seg: np.ndarray, ok: np.ndarray, nseg: int, prm: EdgeParams
@@ -210,10 +210,10 @@ def _robust_points(s: np.ndarray, e: np.ndarray, seg: np.ndarray, ok: np.ndarray
     return keep
 
 
-def _collect(bu, bv, s, e, seg, n, contrast, keep, prm: EdgeParams) -> EdgePoints:
-    """EdgePoints of the kept points of segments with at least min_points, renumbered."""
+def collect_points(bu, bv, s, e, seg, n, contrast, keep, min_points: int) -> EdgePoints:
+    """EdgePoints (at bu, bv + e·n) of the kept points of segments with at least min_points, renumbered."""
     counts = np.bincount(seg, keep.astype(int), len(n))
-    good = counts >= prm.min_points
+    good = counts >= min_points
     keep = keep & good[seg]
     if not keep.any():
         return empty_points()

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from appdgen.calib.calibration import Calibration
-from appdgen.detect.edges import EdgeParams, EdgePoints, empty_points
+from appdgen.detect.edges import EdgeParams, EdgePoints, collect_points
 from appdgen.detect.model import belief_crop
 from appdgen.errors import AppdgenError
 from appdgen.geometry.appd import appd
@@ -28,37 +28,21 @@ def warp_points(points: EdgePoints, reference: Calibration, reference_crop, beli
     """REF-rectified edge points as belief b's rectification shows them (belief output px)."""
     if points.segments == 0:
         return points
-    qu, qv = output_warp(belief, belief_crop, reference, reference_crop, points.u, points.v)
+    u, v = output_warp(belief, belief_crop, reference, reference_crop, points.u, points.v)
     w, h = belief.size
-    keep = np.isfinite(qu) & np.isfinite(qv) & (qu >= 2) & (qu <= w - 3) & (qv >= 2) & (qv <= h - 3)
-    nseg = points.segments
-    counts = np.bincount(points.seg, keep.astype(int), nseg)
-    good = counts >= min_points
-    keep &= good[points.seg]
-    if not keep.any():
-        return empty_points()
-    new = np.cumsum(good) - 1
-    sg = new[points.seg[keep]]
-    ns = int(good.sum())
-    u, v = qu[keep], qv[keep]
-    cnt = np.bincount(sg, minlength=ns).astype(float)
-    cu, cv = np.bincount(sg, u, ns) / cnt, np.bincount(sg, v, ns) / cnt
-    du, dv = u - cu[sg], v - cv[sg]
+    keep = np.isfinite(u) & np.isfinite(v) & (u >= 2) & (u <= w - 3) & (v >= 2) & (v <= h - 3)
+    u, v = np.where(keep, u, 0.0), np.where(keep, v, 0.0)
+    sg, ns, wk = points.seg, points.segments, keep.astype(float)
+    cnt = np.maximum(np.bincount(sg, wk, ns), 1.0)
+    du, dv = u - (np.bincount(sg, wk * u, ns) / cnt)[sg], v - (np.bincount(sg, wk * v, ns) / cnt)[sg]
     # each segment's direction: the leading axis of its moved points' scatter, signed as the old direction
-    suu, svv, suv = np.bincount(sg, du * du, ns), np.bincount(sg, dv * dv, ns), np.bincount(sg, du * dv, ns)
+    suu, svv, suv = (np.bincount(sg, wk * a * b, ns) for a, b in ((du, du), (dv, dv), (du, dv)))
     angle = 0.5 * np.arctan2(2 * suv, suu - svv)
-    t = np.column_stack([np.cos(angle), np.sin(angle)])
-    old_n = points.normal[good]
-    n = np.column_stack([-t[:, 1], t[:, 0]])
-    flip = np.where((n * old_n).sum(1) < 0, -1.0, 1.0)
-    n, t = n * flip[:, None], t * flip[:, None]
-    s = du * t[sg, 0] + dv * t[sg, 1]
+    n = np.column_stack([-np.sin(angle), np.cos(angle)])
+    n *= np.where((n * points.normal).sum(1) < 0, -1.0, 1.0)[:, None]
+    s = du * n[sg, 1] - dv * n[sg, 0]  # along t = (n_y, −n_x)
     e = du * n[sg, 0] + dv * n[sg, 1]
-    lo, hi = np.full(ns, np.inf), np.full(ns, -np.inf)
-    np.minimum.at(lo, sg, s)
-    np.maximum.at(hi, sg, s)
-    mid = np.bincount(sg, s, ns) / cnt
-    return EdgePoints(u, v, s - mid[sg], e, sg, n, np.column_stack([cu, cv]), hi - lo, points.contrast[good])
+    return collect_points(u - e * n[sg, 0], v - e * n[sg, 1], s, e, sg, n, points.contrast, keep, min_points)
 
 
 def warp_evidence(evidence: Sequence, reference: Calibration, reference_crop, belief: Calibration, belief_crop

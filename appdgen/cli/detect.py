@@ -29,6 +29,7 @@ from appdgen.cli.base import (
     start_plot,
 )
 from appdgen.detect import DEFAULT_SEQUENCE, DEFAULT_THRESHOLD_PCT
+from appdgen.detect.simulate import SIMULATED
 from appdgen.errors import AppdgenError
 
 #: A reading's fields in a frame's JSON object (after `image`); a sequence's add `offsets`.
@@ -252,7 +253,8 @@ def draw_plot(target: Path, detector: Any, images: Sequence, report: Report, bas
               help="Read against this camera's baseline (--save-baseline) instead of against straight lines.")
 @click.option("--save-baseline", "save_path", default=None, type=click.Path(dir_okay=False),
               help="Record how these frames read under --calib (the calibration the camera was calibrated with) "
-                   "as the camera's baseline, to this JSON file.")
+                   "as the camera's baseline, to this JSON file, with the camera's map from readings to APPD "
+                   f"(learnt from {SIMULATED} simulated beliefs around --calib; about a minute more on one core).")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False),
               help="Also write every frame's and sequence's reading and a summary to this JSON file.")
 @set_option
@@ -290,7 +292,6 @@ def detect(calib_path, camera, images_spec, sequence, threshold_pct, baseline_pa
     finally:
         bar.close()
     if save_path:
-        from appdgen.detect.simulate import SIMULATED
         sim_bar = Progress(SIMULATED, unit="simulated beliefs (the camera's map)", enabled=not quiet)
         try:
             saved = detector.save_baseline(kept, source=images_spec, progress=lambda done, _: sim_bar.update(done))

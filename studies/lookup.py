@@ -77,9 +77,10 @@ def main(argv: list[str] | None = None) -> None:
     """Run studies.<name> with the swapped lookup: `python -m studies.lookup NAME [ITS ARGUMENTS]`."""
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] not in STUDIES:
-        sys.exit(f"usage: python -m studies.lookup {{{','.join(STUDIES)}}} [the study's arguments]")
+        print(f"usage: python -m studies.lookup {{{','.join(STUDIES)}}} [the study's arguments]", file=sys.stderr)
+        sys.exit(2)
     study = importlib.import_module(f"studies.{argv[0]}")
-    with swapped():
+    with swapped():  # bendfield's --jobs workers are forked (Linux), so they inherit the swap
         study.main(argv[1:])
 
 

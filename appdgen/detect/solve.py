@@ -60,8 +60,6 @@ class SolveParams:
     sigma_floor: float = 0.02  # no segment is trusted more than this
     shrink: float = 20.0  # points' worth of the median variance mixed into each segment's own
     iters: int = 6
-    scene_sag: float = 0.0  # px: sd of a scene edge's own bend (quadratic and cubic, at its ends); 0: none
-    scene_nu: float = 3.0  # degrees of freedom of that bend (Student t: a curved object loses its say)
 
 
 @dataclass(frozen=True)
@@ -106,82 +104,30 @@ def solve(d: Design, prior_var: np.ndarray, prm: SolveParams = SolveParams()) ->
     w = np.ones(d.y.size)
     seg_ok = np.ones(n, bool)
     c = np.zeros(k)
-    track = d.tracks()
-    z_raw = scene_shapes(d)
-    both = np.column_stack([d.y, d.x, z_raw])
-    scale = np.ones(int(track.max()) + 1)
-    fitted = np.zeros(d.y.size)  # the scene edges' own bend at the last iteration's c
+    both = np.column_stack([d.y, d.x])
     for it in range(prm.iters + 1):
         ww = w * seg_ok[d.seg]
         t = detrend(both, d, ww)
-        yt, xt, z = t[:, 0], t[:, 1:k + 1], t[:, k + 1:]
-        var = segment_noise(yt - xt @ c - fitted, d, ww, prm)
+        yt, xt = t[:, 0], t[:, 1:]
+        var = segment_noise(yt - xt @ c, d, ww, prm)
         if it < prm.iters:
             med = np.median(var[seg_ok]) if seg_ok.any() else 0.01
             seg_ok = (var <= prm.seg_rms ** 2 * med) & (np.bincount(d.seg, ww, n) >= 5)
         ww = w * seg_ok[d.seg]
         pw = ww / var[d.seg]
-        bend = scene_bend(xt, yt, z, pw, d, track, c, prm.scene_sag, scale)
         xtw = xt.T * pw
-        h, g = xtw @ xt - bend.h, xtw @ yt - bend.g
+        h, g = xtw @ xt, xtw @ yt
         cov = np.linalg.inv(h + prior)
         c = cov @ g
-        bend = scene_bend(xt, yt, z, pw, d, track, c, prm.scene_sag, scale)
-        fitted = bend.fitted
-        r = yt - xt @ c - fitted
+        r = yt - xt @ c
         if it < prm.iters:
             w = np.minimum(1.0, prm.huber * np.sqrt(var[d.seg]) / np.maximum(np.abs(r), 1e-12))
-            if prm.scene_sag > 0:  # Student t: an edge bent far beyond scene_sag keeps its bend to itself
-                scale = (prm.scene_nu + z.shape[1]) / (prm.scene_nu + bend.size2)
     used = seg_ok & (np.bincount(d.seg, ww, n) > 0)
+    track = d.tracks()
     info = np.bincount(d.seg, pw * (xt ** 2).sum(1), n)
     return Estimate(c, cov, h, g, float(np.sqrt(np.median(var[used]))) if used.any() else 0.0, int(used.sum()),
                     int((ww > 0).sum()), int(np.unique(track[used]).size), edge_meat(xt, r, pw, track[d.seg]),
                     info / max(float(info.sum()), 1e-300))
-
-
-def scene_shapes(d: Design) -> np.ndarray:
-    """(N, 2) a scene edge's own bend shapes at each point: (s/h)² and (s/h)³, h the half span of its segment."""
-    half = np.zeros(d.nseg)
-    np.maximum.at(half, d.seg, np.abs(d.s))
-    x = d.s / np.maximum(half, 1.0)[d.seg]
-    return np.column_stack([x * x, x * x * x])
-
-
-@dataclass(frozen=True)
-class SceneBend:
-    """Each scene edge's own bend marginalised: what it takes from H and g, its posterior mean at every point (px)
-    and each edge's size² in units of the prior's variance."""
-
-    h: np.ndarray
-    g: np.ndarray
-    fitted: np.ndarray
-    size2: np.ndarray
-
-
-def scene_bend(xt: np.ndarray, yt: np.ndarray, z: np.ndarray, pw: np.ndarray, d: Design, track: np.ndarray,
-               c: np.ndarray, sag: float, scale: np.ndarray) -> SceneBend:
-    """Each track's own bend b ~ N(0, sag²/scale_t) along z, shared by all its segments, integrated out (Woodbury):
-    H −= Σ_t U_tᵀ A_t⁻¹ U_t, g −= Σ_t U_tᵀ A_t⁻¹ V_t with A_t = Z_tᵀWZ_t + scale_t/sag², U_t = Z_tᵀWX_t,
-    V_t = Z_tᵀWy_t; and b's posterior mean A_t⁻¹(V_t − U_t c)."""
-    k, m = xt.shape[1], z.shape[1]
-    nt = scale.size
-    if sag <= 0:
-        return SceneBend(np.zeros((k, k)), np.zeros(k), np.zeros(yt.size), np.zeros(nt))
-    t = track[d.seg]
-    a = np.zeros((nt, m, m))
-    for i in range(m):
-        for j in range(i, m):
-            a[:, i, j] = a[:, j, i] = np.bincount(t, pw * z[:, i] * z[:, j], nt)
-    a += (scale / sag ** 2)[:, None, None] * np.eye(m)
-    xy = np.column_stack([xt, yt])
-    uv = np.stack([np.stack([np.bincount(t, pw * z[:, i] * col, nt) for col in xy.T], 1) for i in range(m)], 1)
-    sol = np.linalg.solve(a, uv)  # T × m × (K+1): A⁻¹ [U, V]
-    u = uv[:, :, :k]
-    h = np.einsum("tmk,tml->kl", u, sol[:, :, :k])
-    g = np.einsum("tmk,tm->k", u, sol[:, :, k])
-    b = sol[:, :, k] - sol[:, :, :k] @ c
-    return SceneBend(h, g, np.einsum("nm,nm->n", z, b[t]), (b ** 2).sum(1) / sag ** 2)
 
 
 def edge_meat(xt: np.ndarray, r: np.ndarray, pw: np.ndarray, cluster: np.ndarray) -> np.ndarray:

@@ -6,9 +6,11 @@ and without a baseline from the first frames, scored against the truth.
 
 Per set and baseline: MAE of the windows' APPD readings / the mean predictor's (the mean label of the prior's
 draws), the truth inside 2 sd (coverage, over every belief's windows), true-file windows flagged, beliefs above
-0.5 % flagged (windows), the median sd, and frames/s. Evidence is cached per belief under OUT/cache (delete it after
-a change to appdgen/detect/edges.py). Uses the product's public API (Detector.evidence, save_baseline, read) and the
-mean predictor's draws of train.scoring.
+0.5 % flagged (windows), the median sd, and frames/s; and the frames to flag a 1 % miscalibration: every belief of
+APPD NEAR_ONE (and the true file) read on the first n test frames pooled, n doubling from the window up to all of
+them, the least n read `miscalibrated` (none: not within the test frames). Evidence is cached per belief under
+OUT/cache (delete it after a change to appdgen/detect/edges.py). Uses the product's public API
+(Detector.evidence, save_baseline, read) and the mean predictor's draws of train.scoring.
 """
 from __future__ import annotations
 
@@ -30,6 +32,7 @@ from train.scoring import prior_draws
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 SEED = 77  # the beliefs' draws
+NEAR_ONE = (0.8, 1.25)  # APPD, %: the beliefs that stand for "a 1 % miscalibration"
 
 
 @dataclass(frozen=True)
@@ -91,7 +94,7 @@ def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
     camera_map = None if baseline.camera_map is None else baseline.camera_map.to_dict()
     log(f"{name} baseline: {save_seconds:.1f} s, camera map {camera_map}")
     mean = cached(out / "cache" / f"{name}-mean.pkl", lambda: mean_label(truth))
-    rows = []
+    rows, grown = [], []
     for k, (belief, appd) in enumerate(beliefs(truth, count)):
         det = Detector(belief)
         ev = cached(out / "cache" / f"{name}-{k}.pkl",
@@ -101,11 +104,44 @@ def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
                 r = det.read(ev[start:start + s.window], bl)
                 rows.append({"belief": k, "truth": appd, "baseline": bl is not None, "first": s.test[0] + start,
                              "appd": r.appd_pct, "sd": r.appd_sd_pct, "verdict": r.verdict, "reason": r.reason})
+        if k == 0 or NEAR_ONE[0] <= appd <= NEAR_ONE[1]:
+            grown.extend(grow(det, ev, baseline, s.window, k, appd))
         log(f"{name} belief {k} (APPD {appd:.2f} %): " + " ".join(
             f"{x['appd']:.2f}±{x['sd']:.2f}{'*' if x['verdict'] == 'miscalibrated' else ''}"
             if x["appd"] is not None else "abstain" for x in rows if x["belief"] == k))
-    return {"set": name, "mean": mean, "rows": rows, "save_baseline_seconds": save_seconds,
+    return {"set": name, "mean": mean, "rows": rows, "grown": grown, "save_baseline_seconds": save_seconds,
             "camera_map": camera_map}
+
+
+def pool_sizes(window: int, frames: int) -> list[int]:
+    """Frames pooled: the window, doubling, and all of them (each at most frames)."""
+    sizes = []
+    n = window
+    while n < frames:
+        sizes.append(n)
+        n *= 2
+    return sizes + [frames]
+
+
+def grow(det: Detector, ev: list, baseline, window: int, belief: int, appd: float) -> list[dict]:
+    """The first n frames of ev read pooled, with and without the baseline, for every n of pool_sizes."""
+    return [{"belief": belief, "truth": appd, "baseline": bl is not None, "frames": n, "appd": r.appd_pct,
+             "sd": r.appd_sd_pct, "verdict": r.verdict}
+            for n in pool_sizes(window, len(ev)) for bl in (None, baseline) for r in [det.read(ev[:n], bl)]]
+
+
+def frames_to_flag(result: dict, with_baseline: bool) -> dict:
+    """Per belief of grow's rows: the least frames pooled that read `miscalibrated` (None: never), and its readings."""
+    out = {}
+    for r in result.get("grown", []):
+        if r["baseline"] != with_baseline:
+            continue
+        entry = out.setdefault(f"{r['truth']:.2f}", {"flagged_at": None, "reads": []})
+        entry["reads"].append(f"{r['frames']}: {r['appd']:.2f}±{r['sd']:.2f}" if r["appd"] is not None else
+                              f"{r['frames']}: abstain")
+        if r["verdict"] == "miscalibrated" and entry["flagged_at"] is None:
+            entry["flagged_at"] = r["frames"]
+    return out
 
 
 def scores(result: dict, with_baseline: bool) -> dict:
@@ -137,7 +173,7 @@ def main(argv: list[str] | None = None) -> None:
         result = read_set(name, SETS[name], a.beliefs, out, lambda line: print(line, file=sys.stderr, flush=True))
         found.append(result)
         for bl in (False, True):
-            print(json.dumps(scores(result, bl)), flush=True)
+            print(json.dumps(scores(result, bl) | {"frames_to_flag": frames_to_flag(result, bl)}), flush=True)
     (out / "readings.json").write_text(json.dumps(found) + "\n")
 
 

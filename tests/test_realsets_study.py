@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from studies.realsets import scores
+from studies.realsets import frames_to_flag, pool_sizes, scores
 
 
 def row(truth: float, appd: float | None, sd: float | None, verdict: str, baseline: bool = True) -> dict:
@@ -23,3 +23,23 @@ def test_scores_count_coverage_flags_and_the_mean_predictor_by_hand() -> None:
     errors, mean_errors = [0.1, 0.6, 0.3, 0.1], [0.4, 0.4, 0.4, 0.4]
     assert s["mae_vs_mean"] == pytest.approx(sum(errors) / sum(mean_errors))
     assert s["median_sd"] == pytest.approx(0.1) and s["true_reads"] == [0.1, 0.6]
+
+
+def test_pool_sizes_double_from_the_window_to_every_frame() -> None:
+    assert pool_sizes(50, 200) == [50, 100, 200]
+    assert pool_sizes(10, 60) == [10, 20, 40, 60]
+    assert pool_sizes(10, 10) == [10] and pool_sizes(10, 7) == [7]
+
+
+def test_frames_to_flag_is_the_least_pool_flagged_per_belief() -> None:
+    def grown(truth: float, frames: int, verdict: str, baseline: bool = True, appd: float | None = 0.5) -> dict:
+        return {"belief": 0, "truth": truth, "baseline": baseline, "frames": frames, "appd": appd, "sd": 0.1,
+                "verdict": verdict}
+
+    rows = [grown(0.98, 10, "uncertain"), grown(0.98, 20, "miscalibrated"), grown(0.98, 40, "uncertain"),
+            grown(0.98, 40, "miscalibrated", baseline=False),  # the other variant
+            grown(0.0, 10, "abstain", appd=None), grown(0.0, 20, "ok")]
+    out = frames_to_flag({"grown": rows}, with_baseline=True)
+    assert out["0.98"]["flagged_at"] == 20 and len(out["0.98"]["reads"]) == 3
+    assert out["0.00"] == {"flagged_at": None, "reads": ["10: abstain", "20: 0.50±0.10"]}
+    assert frames_to_flag({"grown": rows}, with_baseline=False)["0.98"]["flagged_at"] == 40

@@ -18,7 +18,6 @@ of its score carried by the five segments that carry most, with those segments' 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -29,8 +28,8 @@ from appdgen.detect import Detector
 from appdgen.detect.edges import EdgeParams, EdgePoints, edge_points, segment_fit
 from appdgen.sources.decode import as_channels
 from appdgen.synth import frame_rng, render_frame, render_ideal, scale_calibration
+from studies.realsets import SETS, SHARED, RealSet
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 LENGTHS = ((40, 80), (80, 160), (160, 10_000))  # px, segment span classes
 PHASES = 8  # bins of the true edge's sub-pixel phase
 
@@ -103,21 +102,20 @@ def spread(k: np.ndarray, v: np.ndarray) -> float:
     return float(np.sqrt(hi))
 
 
-def real_frames(calib: Path, folder: Path, pattern: str, first: int, last: int) -> list[EdgePoints]:
-    """Edge points of frames [first, last) of a real set, rectified under its true file."""
-    det = Detector(appdgen.load(str(calib)))
-    return [det.evidence(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)).points
-            for f in sorted(folder.glob(pattern))[first:last]]
+def real_frames(s: RealSet, frames: int) -> list[EdgePoints]:
+    """Edge points of the first `frames` test frames of a real set (studies.realsets), rectified under its true
+    file."""
+    det = Detector(appdgen.load(str(s.calib)))
+    files = sorted(s.frames.glob(s.pattern))[s.test[0]:s.test[0] + frames]
+    return [det.evidence(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)).points for f in files]
 
 
 def bend() -> None:
     """τ by segment length on the desk, EuRoC (true files) and synthetic streets (rendered and ideal)."""
     sets = {}
     if SHARED.exists():
-        sets["desk 101-160"] = real_frames(SHARED / "vamr_desk" / "camera_opencv.yaml",
-                                           SHARED / "vamr_desk" / "frames", "*.jpg", 100, 160)
-        sets["EuRoC 35-94"] = real_frames(SHARED / "euroc_micro_cam1" / "sensor.yaml",
-                                          SHARED / "euroc_micro_cam1" / "data", "*.png", 35, 95)
+        sets["desk 101-160"] = real_frames(SETS["desk"], 60)
+        sets["EuRoC 35-94"] = real_frames(SETS["euroc"], 60)
     cam = scale_calibration(default_calibration("02"), 0.5)
     det = Detector(cam, library_draws=200)
     sets["streets (30)"] = [det.evidence(render_frame(cam, frame_rng(11, i))).points for i in range(30)]

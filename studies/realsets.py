@@ -6,7 +6,8 @@ and without a baseline from the first frames, scored against the truth.
 
 Per set and baseline: MAE of the windows' APPD readings / the mean predictor's (the mean label of the prior's
 draws), the truth inside 2 sd (coverage, over every belief's windows), true-file windows flagged, beliefs above
-0.5 % flagged (windows), the median sd, and frames/s; and the frames to flag a 1 % miscalibration: every belief of
+0.5 % flagged (windows), the median sd, and frames/s; the same per frame (every single_stride-th test frame read
+alone: "per_frame", its "windows" the frames read); and the frames to flag a 1 % miscalibration: every belief of
 APPD NEAR_ONE (and the true file) read on the first n test frames pooled, n doubling from the window up to all of
 them, the least n read `miscalibrated` (none: not within the test frames). Evidence is cached per belief under
 OUT/cache (delete it after a change to appdgen/detect/edges.py). Uses the product's public API
@@ -94,7 +95,7 @@ def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
     camera_map = None if baseline.camera_map is None else baseline.camera_map.to_dict()
     log(f"{name} baseline: {save_seconds:.1f} s, camera map {camera_map}")
     mean = cached(out / "cache" / f"{name}-mean.pkl", lambda: mean_label(truth))
-    rows, grown = [], []
+    rows, grown, singles = [], [], []
     for k, (belief, appd) in enumerate(beliefs(truth, count)):
         det = Detector(belief)
         ev = cached(out / "cache" / f"{name}-{k}.pkl",
@@ -104,13 +105,23 @@ def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
                 r = det.read(ev[start:start + s.window], bl)
                 rows.append({"belief": k, "truth": appd, "baseline": bl is not None, "first": s.test[0] + start,
                              "appd": r.appd_pct, "sd": r.appd_sd_pct, "verdict": r.verdict, "reason": r.reason})
+        for i in range(0, len(ev), single_stride(s.window)):
+            for bl in (None, baseline):
+                r = det.read(ev[i:i + 1], bl)
+                singles.append({"belief": k, "truth": appd, "baseline": bl is not None, "first": s.test[0] + i,
+                                "appd": r.appd_pct, "sd": r.appd_sd_pct, "verdict": r.verdict, "reason": r.reason})
         if k == 0 or NEAR_ONE[0] <= appd <= NEAR_ONE[1]:
             grown.extend(grow(det, ev, baseline, s.window, k, appd))
         log(f"{name} belief {k} (APPD {appd:.2f} %): " + " ".join(
             f"{x['appd']:.2f}±{x['sd']:.2f}{'*' if x['verdict'] == 'miscalibrated' else ''}"
             if x["appd"] is not None else "abstain" for x in rows if x["belief"] == k))
-    return {"set": name, "mean": mean, "rows": rows, "grown": grown, "save_baseline_seconds": save_seconds,
-            "camera_map": camera_map}
+    return {"set": name, "mean": mean, "rows": rows, "grown": grown, "singles": singles,
+            "save_baseline_seconds": save_seconds, "camera_map": camera_map}
+
+
+def single_stride(window: int) -> int:
+    """Every this many test frames one is also read alone (per frame scores): about ten per window."""
+    return max(1, window // 10)
 
 
 def pool_sizes(window: int, frames: int) -> list[int]:
@@ -173,7 +184,10 @@ def main(argv: list[str] | None = None) -> None:
         result = read_set(name, SETS[name], a.beliefs, out, lambda line: print(line, file=sys.stderr, flush=True))
         found.append(result)
         for bl in (False, True):
-            print(json.dumps(scores(result, bl) | {"frames_to_flag": frames_to_flag(result, bl)}), flush=True)
+            per_frame = scores(result | {"rows": result["singles"]}, bl)
+            print(json.dumps(scores(result, bl) | {"frames_to_flag": frames_to_flag(result, bl), "per_frame": {
+                k: per_frame[k] for k in ("windows", "mae_vs_mean", "coverage", "true_flagged", "above_flagged",
+                                          "median_sd")}}), flush=True)
     (out / "readings.json").write_text(json.dumps(found) + "\n")
 
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from studies.realsets import frames_to_flag, pool_sizes, scores
+from studies.realsets import frames_to_flag, pool_sizes, scores, single_stride
 
 
 def row(truth: float, appd: float | None, sd: float | None, verdict: str, baseline: bool = True) -> dict:
@@ -43,3 +43,8 @@ def test_frames_to_flag_is_the_least_pool_flagged_per_belief() -> None:
     assert out["0.98"]["flagged_at"] == 20 and len(out["0.98"]["reads"]) == 3
     assert out["0.00"] == {"flagged_at": None, "reads": ["10: abstain", "20: 0.50±0.10"]}
     assert frames_to_flag({"grown": rows}, with_baseline=False)["0.98"]["flagged_at"] == 40
+
+
+def test_single_frames_are_about_ten_per_window() -> None:
+    assert single_stride(50) == 5 and single_stride(10) == 1 and single_stride(3) == 1
+    assert len(range(0, 200, single_stride(50))) == 40 and len(range(0, 60, single_stride(10))) == 60

@@ -60,8 +60,6 @@ class SolveParams:
     sigma_floor: float = 0.02  # no segment is trusted more than this
     shrink: float = 20.0  # points' worth of the median variance mixed into each segment's own
     iters: int = 6
-    scene_bend: bool = __import__("os").environ.get("APPDGEN_SCENE_BEND") == "1"  # EXPERIMENT: own curvature τ(length)
-    bend_bins: tuple[float, ...] = (80.0, 160.0)  # segment spans (px) splitting the length classes of τ
 
 
 @dataclass(frozen=True)
@@ -96,35 +94,6 @@ def segment_noise(r: np.ndarray, d: Design, ww: np.ndarray, prm: SolveParams) ->
     return np.maximum(ms, prm.sigma_floor ** 2)
 
 
-def bend_spread(k: np.ndarray, v: np.ndarray) -> float:
-    """τ: the curvature's sd beyond noise (units of k), so that the median of k²/(τ² + v) is χ²₁'s (0.455)."""
-    if k.size == 0:
-        return 0.0
-    lo, hi = 1e-12, max(float((k ** 2).max()), 1e-9)
-    if np.median(k ** 2 / (lo + v)) <= 0.455:
-        return 0.0
-    for _ in range(50):
-        mid = np.sqrt(lo * hi)
-        lo, hi = (mid, hi) if np.median(k ** 2 / (mid + v)) > 0.455 else (lo, mid)
-    return float(np.sqrt(hi))
-
-
-def scene_shrink(qd: np.ndarray, r: np.ndarray, pw: np.ndarray, d: Design, span: np.ndarray, ok: np.ndarray,
-                 prm: SolveParams) -> np.ndarray:
-    """(nseg,) τ_j²: each segment's own-curvature variance, its length class's spread of the residual curvatures
-    (px per (100 px)²) beyond their noise 1/Q_j."""
-    n = d.nseg
-    qq = np.bincount(d.seg, pw * qd * qd, n)
-    k = np.bincount(d.seg, pw * qd * r, n) / np.maximum(qq, 1e-300)
-    v = 1.0 / np.maximum(qq, 1e-300)
-    cls = np.searchsorted(np.asarray(prm.bend_bins), span)
-    tau2 = np.zeros(n)
-    for c in np.unique(cls):
-        m = (cls == c) & ok & (qq > 0)
-        tau2[cls == c] = bend_spread(k[m], v[m]) ** 2 if m.sum() >= 8 else 0.0
-    return tau2
-
-
 def solve(d: Design, prior_var: np.ndarray, prm: SolveParams = SolveParams()) -> Estimate:
     """MAP coefficients under the prior N(0, diag(prior_var)) by IRLS, with H, g, the covariance and the meat."""
     k = prior_var.size
@@ -136,14 +105,6 @@ def solve(d: Design, prior_var: np.ndarray, prm: SolveParams = SolveParams()) ->
     seg_ok = np.ones(n, bool)
     c = np.zeros(k)
     both = np.column_stack([d.y, d.x])
-    beta, tau2 = np.zeros(n), np.zeros(n)
-    if prm.scene_bend:
-        lo = np.full(n, np.inf)
-        hi = np.full(n, -np.inf)
-        np.minimum.at(lo, d.seg, d.s)
-        np.maximum.at(hi, d.seg, d.s)
-        span = hi - lo
-        q = (d.s / 100.0) ** 2
     for it in range(prm.iters + 1):
         ww = w * seg_ok[d.seg]
         t = detrend(both, d, ww)
@@ -156,28 +117,16 @@ def solve(d: Design, prior_var: np.ndarray, prm: SolveParams = SolveParams()) ->
         pw = ww / var[d.seg]
         xtw = xt.T * pw
         h, g = xtw @ xt, xtw @ yt
-        if prm.scene_bend:  # rank one per segment (Woodbury): its own curvature along q of variance τ²
-            qd = q - segment_fit(d.s, q, d.seg, ww, n, 1)
-            qx = np.stack([np.bincount(d.seg, pw * qd * col, n) for col in xt.T], axis=1)
-            qy = np.bincount(d.seg, pw * qd * yt, n)
-            beta = tau2 / (1.0 + tau2 * np.bincount(d.seg, pw * qd * qd, n))
-            h = h - (qx.T * beta) @ qx
-            g = g - (qx.T * beta) @ qy
         cov = np.linalg.inv(h + prior)
         c = cov @ g
         r = yt - xt @ c
-        if prm.scene_bend and it < prm.iters:
-            tau2 = scene_shrink(qd, r, pw, d, span, seg_ok, prm)
         if it < prm.iters:
             w = np.minimum(1.0, prm.huber * np.sqrt(var[d.seg]) / np.maximum(np.abs(r), 1e-12))
     used = seg_ok & (np.bincount(d.seg, ww, n) > 0)
     track = d.tracks()
     info = np.bincount(d.seg, pw * (xt ** 2).sum(1), n)
-    meat_r = r
-    if prm.scene_bend:  # the score with each segment's own-curvature direction discounted: Xᵀ(W − β WqqᵀW) r
-        meat_r = r - (beta * np.bincount(d.seg, pw * qd * r, n))[d.seg] * qd
     return Estimate(c, cov, h, g, float(np.sqrt(np.median(var[used]))) if used.any() else 0.0, int(used.sum()),
-                    int((ww > 0).sum()), int(np.unique(track[used]).size), edge_meat(xt, meat_r, pw, track[d.seg]),
+                    int((ww > 0).sum()), int(np.unique(track[used]).size), edge_meat(xt, r, pw, track[d.seg]),
                     info / max(float(info.sum()), 1e-300))
 
 

@@ -104,7 +104,8 @@ def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
             for bl in (None, baseline):
                 r = det.read(ev[start:start + s.window], bl)
                 rows.append({"belief": k, "truth": appd, "baseline": bl is not None, "first": s.test[0] + start,
-                             "appd": r.appd_pct, "sd": r.appd_sd_pct, "verdict": r.verdict, "reason": r.reason})
+                             "appd": r.appd_pct, "sd": r.appd_sd_pct, "verdict": r.verdict, "reason": r.reason,
+                             "raw": r.raw_appd_pct, "raw_sd": r.raw_appd_sd_pct})
         for i in range(0, len(ev), single_stride(s.window)):
             for bl in (None, baseline):
                 r = det.read(ev[i:i + 1], bl)

@@ -28,7 +28,7 @@ from appdgen.detect import Detector
 from appdgen.detect.edges import EdgeParams, EdgePoints, edge_points, segment_fit
 from appdgen.sources.decode import as_channels
 from appdgen.synth import frame_rng, render_frame, render_ideal, scale_calibration
-from studies.realsets import SETS, SHARED, RealSet
+from studies.realsets import SETS, SHARED, RealSet, raw_frames
 
 LENGTHS = ((40, 80), (80, 160), (160, 10_000))  # px, segment span classes
 PHASES = 8  # bins of the true edge's sub-pixel phase
@@ -106,8 +106,7 @@ def real_frames(s: RealSet, frames: int) -> list[EdgePoints]:
     """Edge points of the first `frames` test frames of a real set (studies.realsets), rectified under its true
     file."""
     det = Detector(appdgen.load(str(s.calib)))
-    files = sorted(s.frames.glob(s.pattern))[s.test[0]:s.test[0] + frames]
-    return [det.evidence(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)).points for f in files]
+    return [det.evidence(raw).points for raw in raw_frames(s, s.test[0], frames)]
 
 
 def bend() -> None:

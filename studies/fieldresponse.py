@@ -34,21 +34,15 @@ import appdgen.detect.simulate as simulate
 from appdgen.detect import Detector
 from appdgen.detect.edges import EdgePoints, collect_points, segment_coefficients
 from appdgen.detect.model import belief_crop
-from appdgen.detect.solve import detrend, pool, segment_noise
+from appdgen.detect.solve import detrend, pool, segment_noise, solve
 from appdgen.detect.tracks import track_ids
 from appdgen.geometry.bend import output_rest, output_warp
 from appdgen.geometry.crop import valid_region
-from studies.realsets import SETS, RealSet, beliefs, scores
+from studies.realsets import SETS, RealSet, beliefs, raw_frames, scores
 
 TILE = 96  # px, the phase-correlation tiles of `warp`
 LONG = 120.0  # px: segments this long or longer have their curvatures compared between the two evidences
 RANDOM_SUBSETS = 6  # random subsets of the real segments, as many as are found in both, solved in `project`
-
-
-def raw_frames(s: RealSet, first: int, count: int) -> list[np.ndarray]:
-    """Grey raw frames first … first + count − 1 of a real set (sorted)."""
-    files = sorted(s.frames.glob(s.pattern))[first:first + count]
-    return [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files]
 
 
 def warp(s: RealSet, k: int) -> None:
@@ -78,7 +72,7 @@ def direction_response(det: Detector, evidence: list, expected: np.ndarray) -> t
     coefficient along it)."""
     used = [e.points for e in evidence if e.segments]
     d = pool([det.design(p) for p in used], track_ids(used))
-    est = det.estimate(evidence)
+    est = solve(d, det.model.var, det.solve_params)  # what det.estimate solves, on the design already pooled
     t = detrend(np.column_stack([d.y, d.x]), d, np.ones(d.y.size))
     yt, xt = t[:, 0], t[:, 1:]
     pw = 1.0 / segment_noise(yt - xt @ est.c, d, np.ones(d.y.size), det.solve_params)[d.seg]
@@ -151,15 +145,19 @@ def project(s: RealSet, k: int) -> None:
             field = m.field_of(det.estimate(ev).c) - scenery
             cells.append(f"{name}: alone {alone:.0f}, solve {solved:.1f}, slope "
                          f"{(field * expected).sum() / (expected ** 2).sum():+.2f}")
-        kept = [[np.isin(np.arange(e.points.segments), [m[side] for m in matches(a.points, b.points)])
-                 for side, e in ((0, a), (1, b))] for a, b in zip(real, warped, strict=True)]
-        both = [direction_response(det, [only(e, k[side]) for e, k in zip(ev, kept, strict=True)], coefs)[1]
+        kept = []  # per frame: (real, warped) masks of the segments found in both
+        for a, b in zip(real, warped, strict=True):
+            pairs = np.array(matches(a.points, b.points), int).reshape(-1, 2)
+            kept.append(tuple(np.isin(np.arange(e.points.segments), pairs[:, side])
+                              for side, e in ((0, a), (1, b))))
+        both = [direction_response(det, [only(e, masks[side]) for e, masks in zip(ev, kept, strict=True)], coefs)[1]
                 for side, ev in ((0, real), (1, warped))]
         rng = np.random.default_rng(0)
-        share = sum(k[0].sum() for k in kept) / max(sum(e.segments for e in real), 1)
+        found = int(sum(masks[0].sum() for masks in kept))
+        share = found / max(sum(e.segments for e in real), 1)
         halves = [direction_response(det, [only(e, rng.random(e.points.segments) < share) for e in real], coefs)[1]
                   for _ in range(RANDOM_SUBSETS)]
-        cells.append(f"the {sum(k[0].sum() for k in kept)} segments found in both: solve real {both[0]:.1f}, "
+        cells.append(f"the {found} segments found in both: solve real {both[0]:.1f}, "
                      f"warped {both[1]:.1f}; random subsets of the real ones as large: {min(halves):.1f} to "
                      f"{max(halves):.1f}")
         corr, gap, n = curvature_gap(real, warped)

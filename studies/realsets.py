@@ -84,8 +84,7 @@ def cached(path: Path, make):
 def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
     """Every belief's windows read with and without the baseline, and the scores."""
     truth = appdgen.load(str(s.calib))
-    files = sorted(s.frames.glob(s.pattern))
-    raws = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files]
+    raws = raw_frames(s, 0, None)
     ref = Detector(truth)
     base_ev = cached(out / "cache" / f"{name}-base.pkl",
                      lambda: [ref.evidence(r) for r in raws[s.baseline[0]:s.baseline[1]]])
@@ -102,15 +101,11 @@ def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
                     lambda det=det: [det.evidence(r) for r in raws[s.test[0]:s.test[1]]])
         for start in range(0, len(ev) - s.window + 1, s.window):
             for bl in (None, baseline):
-                r = det.read(ev[start:start + s.window], bl)
-                rows.append({"belief": k, "truth": appd, "baseline": bl is not None, "first": s.test[0] + start,
-                             "appd": r.appd_pct, "sd": r.appd_sd_pct, "verdict": r.verdict, "reason": r.reason,
-                             "raw": r.raw_appd_pct, "raw_sd": r.raw_appd_sd_pct})
+                rows.append(reading_row(k, appd, bl is not None, s.test[0] + start,
+                                        det.read(ev[start:start + s.window], bl)))
         for i in range(0, len(ev), single_stride(s.window)):
             for bl in (None, baseline):
-                r = det.read(ev[i:i + 1], bl)
-                singles.append({"belief": k, "truth": appd, "baseline": bl is not None, "first": s.test[0] + i,
-                                "appd": r.appd_pct, "sd": r.appd_sd_pct, "verdict": r.verdict, "reason": r.reason})
+                singles.append(reading_row(k, appd, bl is not None, s.test[0] + i, det.read(ev[i:i + 1], bl)))
         if k == 0 or NEAR_ONE[0] <= appd <= NEAR_ONE[1]:
             grown.extend(grow(det, ev, baseline, s.window, k, appd))
         log(f"{name} belief {k} (APPD {appd:.2f} %): " + " ".join(
@@ -118,6 +113,19 @@ def read_set(name: str, s: RealSet, count: int, out: Path, log) -> dict:
             if x["appd"] is not None else "abstain" for x in rows if x["belief"] == k))
     return {"set": name, "mean": mean, "rows": rows, "grown": grown, "singles": singles,
             "save_baseline_seconds": save_seconds, "camera_map": camera_map}
+
+
+def raw_frames(s: RealSet, first: int, count: int | None) -> list[np.ndarray]:
+    """Grey raw frames first … first + count − 1 of a real set, sorted by name (count None: all from first)."""
+    files = sorted(s.frames.glob(s.pattern))[first:None if count is None else first + count]
+    return [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files]
+
+
+def reading_row(belief: int, truth: float, baseline: bool, first: int, r) -> dict:
+    """One window's (or frame's) reading as the scores take it, with its reading before the camera map."""
+    return {"belief": belief, "truth": truth, "baseline": baseline, "first": first, "appd": r.appd_pct,
+            "sd": r.appd_sd_pct, "verdict": r.verdict, "reason": r.reason, "raw": r.raw_appd_pct,
+            "raw_sd": r.raw_appd_sd_pct}
 
 
 def single_stride(window: int) -> int:

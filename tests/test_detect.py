@@ -11,8 +11,19 @@ import pytest
 from appdgen.calib.calibration import Calibration
 from appdgen.calib.defaults import default_calibration
 from appdgen.detect import Baseline, Detector
+from appdgen.detect.baseline import principal_spread
 from appdgen.detect.detector import HOVER, Evidence
 from appdgen.detect.edges import edge_points
+from appdgen.detect.errormodel import (
+    MIN_SEGMENTS,
+    SCENE_FLOOR,
+    SPREAD_SCALES,
+    likelihood,
+    log_likelihood,
+    robust_information,
+    scene_terms,
+    spread_terms,
+)
 from appdgen.detect.model import belief_crop, build_model
 from appdgen.detect.simulate import KINDS, fit_map, warp_evidence, warp_points
 from appdgen.errors import AppdgenError
@@ -136,10 +147,12 @@ def test_baseline_round_trip(truth: Detector, frames, tmp_path, camera: Calibrat
     assert np.abs(base.field).max() > 0.01  # the scene reads as some field: there is a bias to remove
     path = tmp_path / "b.json"
     base.to_json(path)
-    assert json.loads(path.read_text())["version"] == 2
+    assert json.loads(path.read_text())["version"] == 3
     back = Baseline.from_json(path)
     assert back.reference == camera and back.frames == 4 and back.source == "frames 0-3"
     np.testing.assert_allclose(back.field, base.field, atol=1e-5)
+    assert base.spread is not None and back.spread.shape == base.spread.shape
+    np.testing.assert_allclose(back.spread, base.spread, atol=1e-5)
     # The camera's map, learnt from the 3 simulated beliefs and REF itself, is written and read back.
     cmap = back.camera_map
     assert cmap is not None and cmap == base.camera_map and cmap.beliefs == 4 and cmap.kind in KINDS
@@ -164,9 +177,9 @@ def test_baseline_round_trip(truth: Detector, frames, tmp_path, camera: Calibrat
 
 
 @pytest.mark.parametrize("content, problem", [("{", "not a JSON file"), ('{"format": "x"}', "not an appdgen detect"),
-                                              ('{"format": "appdgen-detect-baseline", "version": 2}', "malformed"),
-                                              ('{"format": "appdgen-detect-baseline", "version": 1}',
-                                               "baseline version 1, but this appdgen reads version 2 .*save it "
+                                              ('{"format": "appdgen-detect-baseline", "version": 3}', "malformed"),
+                                              ('{"format": "appdgen-detect-baseline", "version": 2}',
+                                               "baseline version 2, but this appdgen reads version 3 .*save it "
                                                "again with appdgen detect --save-baseline")])
 def test_bad_baseline_files_are_one_line_errors(tmp_path, content, problem):
     path = tmp_path / "b.json"
@@ -174,6 +187,40 @@ def test_bad_baseline_files_are_one_line_errors(tmp_path, content, problem):
     with pytest.raises(AppdgenError, match=problem) as err:
         Baseline.from_json(path)
     assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
+
+
+def test_the_baseline_spread_is_its_frames_covariance(truth: Detector, frames):
+    """Under REF itself the spread reads as the sample covariance of the frames' own coefficients, computed here
+    directly from each frame's solve."""
+    ev = [truth.evidence(f) for f in frames[:5]]
+    base = truth.save_baseline(ev, "frames 0-4", simulated=0)
+    c = np.array([est.c for est in (truth.estimate([e]) for e in ev) if est.segments >= MIN_SEGMENTS])
+    assert len(c) >= 3
+    want = np.cov(c.T)
+    got = base.spread_in(truth.model, truth.belief, None)
+    np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-3 * np.abs(want).max())
+    assert principal_spread(np.zeros((2,) + base.field.shape)) is None  # two frames: no spread
+
+
+def test_the_spread_terms_join_the_likelihood(truth: Detector, frames):
+    """With a baseline's spread the likelihood has SPREAD_SCALES more scene terms (shape NaN), the grid's own terms
+    unchanged; along a direction the spread holds, a reading's offset costs less than it does without it."""
+    ev = [truth.evidence(f) for f in frames[:2]]
+    est, m = truth.estimate(ev), truth.model
+    plain = likelihood(est, m.coefs, m.var, SCENE_FLOOR)
+    u = np.zeros(len(m.var))
+    u[0] = 1.0
+    spread = 25.0 * m.var[0] * np.outer(u, u)
+    both = likelihood(est, m.coefs, m.var, SCENE_FLOOR, spread)
+    grid = len(plain.phis)
+    assert len(both.phis) == grid + len(SPREAD_SCALES) and np.isnan(both.shapes[grid:]).all()
+    np.testing.assert_allclose(both.log[:grid], plain.log, rtol=1e-9, atol=1e-6)
+    # draws far from the reading along component 0 only: the largest spread term explains them best
+    j, b = robust_information(est)
+    read = np.linalg.solve(j + 1e-9 * np.eye(len(b)), b)
+    far = np.array([read + 3 * np.sqrt(m.var[0]) * u])
+    assert log_likelihood(j, b, far, spread_terms(m.var, SCENE_FLOOR, spread)[1][-1]) > max(
+        log_likelihood(j, b, far, np.diag(d)) for d in scene_terms(m.var, SCENE_FLOOR)[2])
 
 
 def test_the_model_cache_is_hit(camera: Calibration, cache, truth: Detector):

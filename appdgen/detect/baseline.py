@@ -1,28 +1,31 @@
 """A camera's baseline reading: the field its scenery reads as under the calibration it was calibrated with (REF),
 on a grid of REF's output pixels. A later belief of the same camera maps its own output pixels to REF's (the warp
-between the two rectifications) and removes that bias before the solve, whatever that belief's basis."""
+between the two rectifications) and removes that bias before the solve, whatever that belief's basis. The spread of
+the baseline frames' own readings around it (principal fields) tells the error model how much, and in which
+directions, another view of the same scenery moves a reading."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from appdgen.calib.calibration import Calibration
-from appdgen.detect.model import belief_crop, field_lookup
+from appdgen.detect.model import FieldModel, belief_crop, field_lookup
 from appdgen.detect.simulate import CameraMap
 from appdgen.errors import AppdgenError
 from appdgen.geometry.bend import output_warp
 from appdgen.util.atomic import write_file
 
 FORMAT = "appdgen-detect-baseline"
-VERSION = 2
+VERSION = 3
 
 
 @dataclass(frozen=True, eq=False)
 class Baseline:
-    """The bias field (gy, gx, 2; output px of REF's rectification) on grid_u × grid_v, and where it came from."""
+    """The bias field (gy, gx, 2; output px of REF's rectification) on grid_u × grid_v, the spread of its frames'
+    readings around it, and where it came from."""
 
     reference: Calibration
     max_fov: float | None
@@ -33,19 +36,23 @@ class Baseline:
     segments: int
     source: str
     camera_map: CameraMap | None = None  # None: readings against it are not mapped (too few frames to learn one)
+    #: (M, gy, gx, 2) principal fields of the frames' readings around `field` (output px): their covariance is
+    #: Σ_m s_m s_mᵀ; None: too few frames read alone
+    spread: np.ndarray | None = None
 
     @classmethod
     def record(cls, reference: Calibration, max_fov: float | None, grid_u: np.ndarray, grid_v: np.ndarray,
                field: np.ndarray, frames: int, segments: int, source: str,
-               camera_map: CameraMap | None = None) -> Baseline:
-        """A baseline from a reading under REF (field: the field read, output px) and the camera's map."""
+               per_frame: np.ndarray | None = None) -> Baseline:
+        """A baseline from a reading under REF (field: the pooled frames' field, output px) and the fields its frames
+        read alone (per_frame (M, gy, gx, 2); fewer than 3: no spread)."""
         return cls(reference, max_fov, np.asarray(grid_u, float), np.asarray(grid_v, float),
-                   np.asarray(field, float), frames, segments, source, camera_map)
+                   np.asarray(field, float), frames, segments, source,
+                   spread=None if per_frame is None else principal_spread(np.asarray(per_frame, float)))
 
     def with_map(self, camera_map: CameraMap | None) -> Baseline:
         """This baseline with the camera's map."""
-        return Baseline(self.reference, self.max_fov, self.grid_u, self.grid_v, self.field, self.frames,
-                        self.segments, self.source, camera_map)
+        return replace(self, camera_map=camera_map)
 
     def check(self, belief: Calibration) -> None:
         """AppdgenError unless the belief is of this baseline's camera (raw size and lens model)."""
@@ -63,13 +70,27 @@ class Baseline:
         qu, qv = output_warp(self.reference, ref_crop, belief, belief_crop(belief, max_fov), u, v)
         return field_lookup(self.grid_u, self.grid_v, self.field[None], qu, qv)[0]
 
+    def spread_in(self, model: FieldModel, belief: Calibration, max_fov: float | None) -> np.ndarray | None:
+        """The frames' spread as a belief's model reads it: the covariance (K, K; coefficient units, px²) of the
+        spread's fields seen at the model's grid nodes, projected on its basis; None without a spread."""
+        if self.spread is None:
+            return None
+        uu, vv = np.meshgrid(model.grid_u, model.grid_v)
+        ref_crop = belief_crop(self.reference, self.max_fov)
+        qu, qv = output_warp(self.reference, ref_crop, belief, belief_crop(belief, max_fov), uu.ravel(), vv.ravel())
+        fields = np.concatenate([np.zeros((1,) + self.spread.shape[1:]), self.spread])
+        seen = field_lookup(self.grid_u, self.grid_v, fields, qu, qv)[1].transpose(1, 0, 2)  # (M, nodes, 2)
+        c = seen.reshape(len(seen), -1) @ model.basis.reshape(len(model.basis), -1).T
+        return c.T @ c
+
     def to_json(self, path: Path) -> None:
         """Write the baseline as JSON (atomically)."""
         doc = {"format": FORMAT, "version": VERSION, "source": self.source, "frames": self.frames,
                "segments": self.segments, "max_fov": self.max_fov, "reference": self.reference.to_dict(),
                "grid_u": self.grid_u.tolist(), "grid_v": self.grid_v.tolist(),
                "field": np.round(self.field, 5).tolist(),
-               "camera_map": None if self.camera_map is None else self.camera_map.to_dict()}
+               "camera_map": None if self.camera_map is None else self.camera_map.to_dict(),
+               "spread": None if self.spread is None else np.round(self.spread, 5).tolist()}
         write_file(Path(path), (json.dumps(doc) + "\n").encode())
 
     @classmethod
@@ -86,7 +107,8 @@ class Baseline:
             raise AppdgenError(f"{path}: not an appdgen detect baseline (no \"format\": \"{FORMAT}\")")
         if doc.get("version") != VERSION:
             raise AppdgenError(f"{path}: baseline version {doc.get('version')!r}, but this appdgen reads version "
-                               f"{VERSION} (with the camera's map): save it again with appdgen detect --save-baseline")
+                               f"{VERSION} (with the camera's map and its frames' spread): save it again with "
+                               "appdgen detect --save-baseline")
         try:
             ref = dict(doc["reference"])
             width, height, model = ref.pop("width"), ref.pop("height"), ref.pop("model")
@@ -100,9 +122,25 @@ class Baseline:
             if not np.isfinite(field).all():
                 raise ValueError("non-finite field")
             camera_map = None if doc["camera_map"] is None else CameraMap.from_dict(doc["camera_map"])
+            spread = None if doc["spread"] is None else np.array(doc["spread"], float)
+            if spread is not None and (spread.ndim != 4 or spread.shape[1:] != field.shape
+                                       or not np.isfinite(spread).all()):
+                raise ValueError("spread shape")
             return cls(reference, None if max_fov is None else float(max_fov), grid_u, grid_v, field,
-                       int(doc["frames"]), int(doc["segments"]), str(doc["source"]), camera_map)
+                       int(doc["frames"]), int(doc["segments"]), str(doc["source"]), camera_map, spread)
         except AppdgenError as exc:
             raise AppdgenError(f"{path}: {exc}") from None
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise AppdgenError(f"{path}: malformed baseline ({exc})") from None
+
+
+def principal_spread(per_frame: np.ndarray) -> np.ndarray | None:
+    """(M, gy, gx, 2) principal fields s_m of fields (n, gy, gx, 2) around their mean, Σ_m s_m s_mᵀ their sample
+    covariance (output px); None for fewer than 3 fields."""
+    n = len(per_frame)
+    if n < 3:
+        return None
+    flat = per_frame.reshape(n, -1)
+    _, sv, vt = np.linalg.svd(flat - flat.mean(0), full_matrices=False)
+    keep = sv > sv[0] * 1e-9 if sv[0] > 0 else sv > 0
+    return (sv[keep, None] / np.sqrt(n - 1) * vt[keep]).reshape((int(keep.sum()),) + per_frame.shape[1:])

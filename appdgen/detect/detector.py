@@ -159,7 +159,9 @@ class Detector:
         if est.segments < MIN_SEGMENTS:
             return abstention(frames, est.segments, threshold_pct,
                               f"too few straight segments ({est.segments} < {MIN_SEGMENTS})")
-        post = posterior(self.model, likelihood(est, self.model.coefs, self.model.var, SCENE_FLOOR), threshold_pct)
+        spread = None if baseline is None else baseline.spread_in(self.model, self.belief, self.max_fov)
+        post = posterior(self.model, likelihood(est, self.model.coefs, self.model.var, SCENE_FLOOR, spread),
+                         threshold_pct)
         offsets = {n: (float(m), float(s)) for n, m, s in zip(self.model.names, post.offsets, post.offsets_sd,
                                                                            strict=True)}
         hover = frames > 1 and moved < HOVER_PX
@@ -190,9 +192,12 @@ class Detector:
                                            simulated, progress))
 
     def _baseline(self, evidence: Sequence[Evidence], source: str) -> Baseline | None:
-        """The baseline field of these frames, without a map; None when they have too few segments."""
+        """The baseline field of these frames and the spread of their fields read alone, without a map; None when
+        they have too few segments."""
         est = self.estimate(evidence)
         if est.segments < MIN_SEGMENTS:
             return None
+        alone = [self.estimate([e]) for e in evidence if e.segments]
+        per_frame = np.array([self.model.field_of(e.c) for e in alone if e.segments >= MIN_SEGMENTS])
         return Baseline.record(self.belief, self.max_fov, self.model.grid_u, self.model.grid_v,
-                               self.model.field_of(est.c), len(evidence), est.segments, source)
+                               self.model.field_of(est.c), len(evidence), est.segments, source, per_frame)

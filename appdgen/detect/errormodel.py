@@ -13,8 +13,12 @@ frames, its points share its own curvature) and scenes add an apparent field of 
   miscalibration of the prior explains (a scene's own field) thus widens its own uncertainty instead of collapsing
   onto the nearest draw, and the floor keeps the posterior over the library smooth in the reading (a kernel
   regression over the library: no reading rests on one draw).
+* with a baseline, also the spread of its frames' own readings around their mean (Baseline.spread_in): how much a
+  different view of this camera's scenery moves the reading, in the directions it moves it, scaled by α on a grid
+  (SPREAD_SCALES) and integrated with the φ grid's terms. Scenery moves the combinations of components that
+  straight edges determine poorly; a term shaped like the prior spends the ± on every direction alike.
 
-The reading is then c_read ~ N(c, (H M⁻¹ H)⁻¹ + D); the posterior is over the library's draws c_i (the prior) and φ.
+The reading is then c_read ~ N(c, (H M⁻¹ H)⁻¹ + D); the posterior is over the library's draws c_i (the prior) and D.
 """
 from __future__ import annotations
 
@@ -36,12 +40,16 @@ SCENE_FLOOR = 0.1
 PHI_MAX = 1.5
 PHI_STEPS = 9  # values of φ on a log grid from the floor to PHI_MAX (a log-uniform prior)
 SHAPES = (0.0, 0.5, 1.0)  # values of γ (a uniform prior)
+#: α of the baseline's spread term α²Σ: a window of 50 desk frames differs from the baseline's scenery by about what
+#: one baseline frame does from the others (α ~ 1), a hover's by less (docs/studies/real-sets.md, 2026-12-07).
+SPREAD_SCALES = tuple(np.geomspace(0.1, 2.0, 7))
 
 
 @dataclass(frozen=True)
 class Likelihood:
-    """log p(reading | c_i, φ, γ) (m, n) up to a constant, for the library's draws c_i and the grid's m = (φ, γ)
-    pairs (phis, shapes)."""
+    """log p(reading | c_i, D_m) (m, n) up to a constant, for the library's draws c_i and the scene terms D_m: the
+    grid's (φ, γ) pairs (phis, shapes), then the baseline's spread terms (shape NaN, φ their equivalent in prior
+    sds)."""
 
     phis: np.ndarray
     shapes: np.ndarray
@@ -67,16 +75,33 @@ def scene_terms(prior_var: np.ndarray, floor: float) -> tuple[np.ndarray, np.nda
     return phi, shape, phi[:, None] ** 2 * mean ** (1 - shape[:, None]) * prior_var[None] ** shape[:, None]
 
 
-def likelihood(est: Estimate, coefs: np.ndarray, prior_var: np.ndarray, floor: float) -> Likelihood:
-    """The reading's likelihood of each library draw under each scene term of the grid."""
+def spread_terms(prior_var: np.ndarray, floor: float, spread: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The baseline spread's terms α²Σ + the floor's D (m, K, K) and their φ (prior sds of the same mean variance)."""
+    base = floor ** 2 * prior_var
+    terms = np.array([a ** 2 * spread + np.diag(base) for a in SPREAD_SCALES])
+    phis = np.sqrt(np.einsum("mkk->m", terms) / prior_var.sum())
+    return phis, terms
+
+
+def likelihood(est: Estimate, coefs: np.ndarray, prior_var: np.ndarray, floor: float,
+               spread: np.ndarray | None = None) -> Likelihood:
+    """The reading's likelihood of each library draw under each scene term: the grid's, and with a baseline's spread
+    Σ (K, K; coefficient units, px²) its scaled terms."""
     j, b = robust_information(est)
     phi, shape, scene = scene_terms(prior_var, floor)
-    log = []
-    for d in scene:
-        d_inv = np.diag(1.0 / d)
-        k = np.linalg.solve(d_inv + j, np.column_stack([j, b]))  # (D⁻¹ + J)⁻¹ [J, b]
-        s_inv, s_b = j - j @ k[:, :-1], b - j @ k[:, -1]  # (J⁻¹ + D)⁻¹ and its product with the reading
-        log_det = np.linalg.slogdet(d_inv + j)[1] + np.log(d).sum()  # log|D| + log|D⁻¹ + J|
-        quad = np.einsum("ij,jk,ik->i", coefs, s_inv, coefs) - 2 * coefs @ s_b - b @ k[:, -1]
-        log.append(-0.5 * (quad + log_det))
-    return Likelihood(phi, shape, np.array(log))
+    terms = [np.diag(d) for d in scene]
+    if spread is not None:
+        spread_phi, spread_d = spread_terms(prior_var, floor, spread)
+        phi, shape = np.r_[phi, spread_phi], np.r_[shape, np.full(len(spread_d), np.nan)]
+        terms.extend(spread_d)
+    return Likelihood(phi, shape, np.array([log_likelihood(j, b, coefs, d) for d in terms]))
+
+
+def log_likelihood(j: np.ndarray, b: np.ndarray, coefs: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """log N(c_read; c_i, J⁻¹ + D) of each draw c_i up to a constant, from the information J, b = J c_read."""
+    d_inv = np.linalg.inv(d)
+    k = np.linalg.solve(d_inv + j, np.column_stack([j, b]))  # (D⁻¹ + J)⁻¹ [J, b]
+    s_inv, s_b = j - j @ k[:, :-1], b - j @ k[:, -1]  # (J⁻¹ + D)⁻¹ and its product with the reading
+    log_det = np.linalg.slogdet(d_inv + j)[1] + np.linalg.slogdet(d)[1]  # log|D| + log|D⁻¹ + J|
+    quad = np.einsum("ij,jk,ik->i", coefs, s_inv, coefs) - 2 * coefs @ s_b - b @ k[:, -1]
+    return -0.5 * (quad + log_det)

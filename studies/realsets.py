@@ -151,12 +151,13 @@ def grow(det: Detector, ev: list, baseline, window: int, belief: int, appd: floa
 
 
 def frames_to_flag(result: dict, with_baseline: bool) -> dict:
-    """Per belief of grow's rows: the least frames pooled that read `miscalibrated` (None: never), and its readings."""
+    """Per belief of grow's rows (keyed by its index and APPD): the least frames pooled that read `miscalibrated`
+    (None: never), and its readings."""
     out = {}
     for r in result.get("grown", []):
         if r["baseline"] != with_baseline:
             continue
-        entry = out.setdefault(f"{r['truth']:.2f}", {"flagged_at": None, "reads": []})
+        entry = out.setdefault(f"belief {r['belief']} ({r['truth']:.2f} %)", {"flagged_at": None, "reads": []})
         entry["reads"].append(f"{r['frames']}: {r['appd']:.2f}±{r['sd']:.2f}" if r["appd"] is not None else
                               f"{r['frames']}: abstain")
         if r["verdict"] == "miscalibrated" and entry["flagged_at"] is None:

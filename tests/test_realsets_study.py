@@ -32,17 +32,20 @@ def test_pool_sizes_double_from_the_window_to_every_frame() -> None:
 
 
 def test_frames_to_flag_is_the_least_pool_flagged_per_belief() -> None:
-    def grown(truth: float, frames: int, verdict: str, baseline: bool = True, appd: float | None = 0.5) -> dict:
-        return {"belief": 0, "truth": truth, "baseline": baseline, "frames": frames, "appd": appd, "sd": 0.1,
+    def grown(truth: float, frames: int, verdict: str, baseline: bool = True, appd: float | None = 0.5,
+              belief: int = 1) -> dict:
+        return {"belief": belief, "truth": truth, "baseline": baseline, "frames": frames, "appd": appd, "sd": 0.1,
                 "verdict": verdict}
 
     rows = [grown(0.98, 10, "uncertain"), grown(0.98, 20, "miscalibrated"), grown(0.98, 40, "uncertain"),
             grown(0.98, 40, "miscalibrated", baseline=False),  # the other variant
-            grown(0.0, 10, "abstain", appd=None), grown(0.0, 20, "ok")]
+            grown(0.981, 10, "uncertain", belief=2),  # another belief of the same rounded APPD stays apart
+            grown(0.0, 10, "abstain", appd=None, belief=0), grown(0.0, 20, "ok", belief=0)]
     out = frames_to_flag({"grown": rows}, with_baseline=True)
-    assert out["0.98"]["flagged_at"] == 20 and len(out["0.98"]["reads"]) == 3
-    assert out["0.00"] == {"flagged_at": None, "reads": ["10: abstain", "20: 0.50±0.10"]}
-    assert frames_to_flag({"grown": rows}, with_baseline=False)["0.98"]["flagged_at"] == 40
+    assert out["belief 1 (0.98 %)"]["flagged_at"] == 20 and len(out["belief 1 (0.98 %)"]["reads"]) == 3
+    assert out["belief 2 (0.98 %)"] == {"flagged_at": None, "reads": ["10: 0.50±0.10"]}
+    assert out["belief 0 (0.00 %)"] == {"flagged_at": None, "reads": ["10: abstain", "20: 0.50±0.10"]}
+    assert frames_to_flag({"grown": rows}, with_baseline=False)["belief 1 (0.98 %)"]["flagged_at"] == 40
 
 
 def test_single_frames_are_about_ten_per_window() -> None:

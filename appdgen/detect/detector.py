@@ -178,10 +178,10 @@ class Detector:
         """How this camera and its scenery read under the calibration it was calibrated with (belief = REF), and
         the camera's map from baseline readings to APPD learnt from `simulated` beliefs around REF read on these
         frames (detect.simulate; 0: no map); progress(done, simulated) after each."""
-        baseline = self._baseline(evidence, source)
-        if baseline is None:
-            est = self.estimate(evidence)
+        est = self.estimate(evidence)
+        if est.segments < MIN_SEGMENTS:
             raise AppdgenError(f"{source}: too few straight segments for a baseline ({est.segments} < {MIN_SEGMENTS})")
+        baseline = self._record(evidence, source, est)
         if simulated <= 0:
             return baseline
 
@@ -195,8 +195,10 @@ class Detector:
         """The baseline field of these frames and the spread of their fields read alone, without a map; None when
         they have too few segments."""
         est = self.estimate(evidence)
-        if est.segments < MIN_SEGMENTS:
-            return None
+        return None if est.segments < MIN_SEGMENTS else self._record(evidence, source, est)
+
+    def _record(self, evidence: Sequence[Evidence], source: str, est: Estimate) -> Baseline:
+        """The baseline of these frames from their pooled solve, with the spread of their fields read alone."""
         alone = [self.estimate([e]) for e in evidence if e.segments]
         per_frame = np.array([self.model.field_of(e.c) for e in alone if e.segments >= MIN_SEGMENTS])
         return Baseline.record(self.belief, self.max_fov, self.model.grid_u, self.model.grid_v,

@@ -40,8 +40,8 @@ SCENE_FLOOR = 0.1
 PHI_MAX = 1.5
 PHI_STEPS = 9  # values of φ on a log grid from the floor to PHI_MAX (a log-uniform prior)
 SHAPES = (0.0, 0.5, 1.0)  # values of γ (a uniform prior)
-#: α of the baseline's spread term α²Σ: a window of 50 desk frames differs from the baseline's scenery by about what
-#: one baseline frame does from the others (α ~ 1), a hover's by less (docs/studies/real-sets.md, 2026-12-07).
+#: α of the baseline's spread term α²Σ (a log-uniform prior): on the real sets a grid reaching 2 helped the desk's
+#: windows of 50, one ending at 0.3 did not, EuRoC's hovers were indifferent (docs/studies/real-sets.md, 2026-12-07).
 SPREAD_SCALES = tuple(np.geomspace(0.1, 2.0, 7))
 
 

@@ -200,6 +200,7 @@ def test_the_baseline_spread_is_its_frames_covariance(truth: Detector, frames):
     got = base.spread_in(truth.model, truth.belief, None)
     np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-3 * np.abs(want).max())
     assert principal_spread(np.zeros((2,) + base.field.shape)) is None  # two frames: no spread
+    assert principal_spread(np.repeat(base.field[None], 4, axis=0)) is None  # frames that read alike: none either
 
 
 def test_the_spread_terms_join_the_likelihood(truth: Detector, frames):

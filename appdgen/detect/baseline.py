@@ -136,11 +136,14 @@ class Baseline:
 
 def principal_spread(per_frame: np.ndarray) -> np.ndarray | None:
     """(M, gy, gx, 2) principal fields s_m of fields (n, gy, gx, 2) around their mean, Σ_m s_m s_mᵀ their sample
-    covariance (output px); None for fewer than 3 fields."""
+    covariance (output px); None for fewer than 3 fields or when they do not differ (no spread to keep: an empty
+    one would not survive the file)."""
     n = len(per_frame)
     if n < 3:
         return None
     flat = per_frame.reshape(n, -1)
     _, sv, vt = np.linalg.svd(flat - flat.mean(0), full_matrices=False)
-    keep = sv > sv[0] * 1e-9 if sv[0] > 0 else sv > 0
+    keep = sv > sv[0] * 1e-9
+    if not keep.any():
+        return None
     return (sv[keep, None] / np.sqrt(n - 1) * vt[keep]).reshape((int(keep.sum()),) + per_frame.shape[1:])

@@ -66,9 +66,16 @@ class Baseline:
         """The recorded bias (N, 2; output px) where belief output pixels (u, v) show REF's rectification."""
         if u.size == 0:
             return np.zeros((0, 2))
+        return self._seen(self.field[None], belief, max_fov, u, v)[:, 0]
+
+    def _seen(self, fields: np.ndarray, belief: Calibration, max_fov: float | None, u: np.ndarray, v: np.ndarray
+              ) -> np.ndarray:
+        """Fields (M, gy, gx, 2) recorded on REF's grid where belief output pixels (u, v) show REF's
+        rectification: (N, M, 2), output px."""
         ref_crop = belief_crop(self.reference, self.max_fov)
         qu, qv = output_warp(self.reference, ref_crop, belief, belief_crop(belief, max_fov), u, v)
-        return field_lookup(self.grid_u, self.grid_v, self.field[None], qu, qv)[0]
+        first, rest = field_lookup(self.grid_u, self.grid_v, fields, qu, qv)
+        return np.concatenate([first[:, None], rest], axis=1)
 
     def spread_in(self, model: FieldModel, belief: Calibration, max_fov: float | None) -> np.ndarray | None:
         """The frames' spread as a belief's model reads it: the covariance (K, K; coefficient units, px²) of the
@@ -76,10 +83,7 @@ class Baseline:
         if self.spread is None:
             return None
         uu, vv = np.meshgrid(model.grid_u, model.grid_v)
-        ref_crop = belief_crop(self.reference, self.max_fov)
-        qu, qv = output_warp(self.reference, ref_crop, belief, belief_crop(belief, max_fov), uu.ravel(), vv.ravel())
-        fields = np.concatenate([np.zeros((1,) + self.spread.shape[1:]), self.spread])
-        seen = field_lookup(self.grid_u, self.grid_v, fields, qu, qv)[1].transpose(1, 0, 2)  # (M, nodes, 2)
+        seen = self._seen(self.spread, belief, max_fov, uu.ravel(), vv.ravel()).transpose(1, 0, 2)  # (M, nodes, 2)
         c = seen.reshape(len(seen), -1) @ model.basis.reshape(len(model.basis), -1).T
         return c.T @ c
 

@@ -199,7 +199,7 @@ class Detector:
 
     def _record(self, evidence: Sequence[Evidence], source: str, est: Estimate) -> Baseline:
         """The baseline of these frames from their pooled solve, with the spread of their fields read alone."""
-        alone = [self.estimate([e]) for e in evidence if e.segments]
-        per_frame = np.array([self.model.field_of(e.c) for e in alone if e.segments >= MIN_SEGMENTS])
+        alone = [self.estimate([frame]) for frame in evidence if frame.segments]
+        per_frame = np.array([self.model.field_of(one.c) for one in alone if one.segments >= MIN_SEGMENTS])
         return Baseline.record(self.belief, self.max_fov, self.model.grid_u, self.model.grid_v,
                                self.model.field_of(est.c), len(evidence), est.segments, source, per_frame)

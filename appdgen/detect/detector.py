@@ -178,28 +178,40 @@ class Detector:
         """How this camera and its scenery read under the calibration it was calibrated with (belief = REF), and
         the camera's map from baseline readings to APPD learnt from `simulated` beliefs around REF read on these
         frames (detect.simulate; 0: no map); progress(done, simulated) after each."""
+        evidence = list(evidence)
         est = self.estimate(evidence)
         if est.segments < MIN_SEGMENTS:
             raise AppdgenError(f"{source}: too few straight segments for a baseline ({est.segments} < {MIN_SEGMENTS})")
-        baseline = self._record(evidence, source, est)
+        alone = self._fields_alone(evidence)
+        baseline = self._record(evidence, source, est, alone)
         if simulated <= 0:
             return baseline
 
         def detector_for(calib: Calibration) -> Detector:
             return Detector(calib, self.max_fov, cache_dir=self.cache_dir, library_draws=self.library_draws)
 
-        return baseline.with_map(learn_map(self, evidence, lambda part: self._baseline(part, source), detector_for,
-                                           simulated, progress))
+        def outside(first: int, last: int) -> Baseline | None:
+            """The baseline of the frames outside [first, last), their fields read alone reused; None when they
+            have too few segments."""
+            part = evidence[:first] + evidence[last:]
+            part_est = self.estimate(part)
+            if part_est.segments < MIN_SEGMENTS:
+                return None
+            return self._record(part, source, part_est, alone[:first] + alone[last:])
 
-    def _baseline(self, evidence: Sequence[Evidence], source: str) -> Baseline | None:
-        """The baseline field of these frames and the spread of their fields read alone, without a map; None when
-        they have too few segments."""
-        est = self.estimate(evidence)
-        return None if est.segments < MIN_SEGMENTS else self._record(evidence, source, est)
+        return baseline.with_map(learn_map(self, evidence, outside, detector_for, simulated, progress))
 
-    def _record(self, evidence: Sequence[Evidence], source: str, est: Estimate) -> Baseline:
+    def _fields_alone(self, evidence: Sequence[Evidence]) -> list[np.ndarray | None]:
+        """Each frame's field read alone (gy, gx, 2; output px), None where it has too few segments."""
+        fields: list[np.ndarray | None] = []
+        for frame in evidence:
+            one = self.estimate([frame]) if frame.segments else None
+            fields.append(self.model.field_of(one.c) if one is not None and one.segments >= MIN_SEGMENTS else None)
+        return fields
+
+    def _record(self, evidence: Sequence[Evidence], source: str, est: Estimate,
+                alone: Sequence[np.ndarray | None]) -> Baseline:
         """The baseline of these frames from their pooled solve, with the spread of their fields read alone."""
-        alone = [self.estimate([frame]) for frame in evidence if frame.segments]
-        per_frame = np.array([self.model.field_of(one.c) for one in alone if one.segments >= MIN_SEGMENTS])
+        per_frame = np.array([f for f in alone if f is not None])
         return Baseline.record(self.belief, self.max_fov, self.model.grid_u, self.model.grid_v,
                                self.model.field_of(est.c), len(evidence), est.segments, source, per_frame)

@@ -132,7 +132,8 @@ def fit_map(read: np.ndarray, sd: np.ndarray, truth: np.ndarray, group: np.ndarr
 def learn_map(reference_detector, evidence: Sequence, baseline_of, detector_for, count: int = SIMULATED,
               progress: Callable[[int, int], None] | None = None) -> CameraMap | None:
     """Read `count` simulated beliefs around REF (and REF itself) on the good frames, each part of FOLDS against the
-    baseline of the other parts (baseline_of(frames) → Baseline; detector_for(calib) → a Detector of that belief),
+    baseline of the other parts (baseline_of(first, last) → the Baseline of the frames outside [first, last), None
+    when they are too weak; detector_for(calib) → a Detector of that belief),
     and fit the camera's map; None when the frames are too few to part."""
     ref, max_fov = reference_detector.belief, reference_detector.max_fov
     evidence = list(evidence)
@@ -140,7 +141,7 @@ def learn_map(reference_detector, evidence: Sequence, baseline_of, detector_for,
         return None
     edges = np.linspace(0, len(evidence), FOLDS + 1).round().astype(int)
     parts = [(edges[f], edges[f + 1]) for f in range(FOLDS)]
-    folds = [baseline_of(evidence[:a] + evidence[b:]) for a, b in parts]
+    folds = [baseline_of(a, b) for a, b in parts]
     sampler = Sampler(ref, max_fov=max_fov)
     ref_crop = belief_crop(ref, max_fov)
     rows: list[tuple[float, float, float, int]] = []

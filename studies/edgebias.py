@@ -12,7 +12,7 @@ then the wave's amplitude for other smoothings (EdgeParams.sigma) and for an 8×
 `bend` fits each segment's quadratic in s/100 px and prints τ, the spread of the curvature beyond each segment's
 own noise (method of moments on medians, px per (100 px)²), by segment length, under the true calibration.
 `weight` solves ideal pinhole street frames (no lens: every edge straight but for the scene's own) with the
-third-order lookup of studies.lookup and prints each frame's first coefficient (prior sd in the line) and the share
+product's third-order lookup and prints each frame's first coefficient (prior sd in the line) and the share
 of its score carried by the five segments that carry most, with those segments' span and place.
 """
 from __future__ import annotations
@@ -132,22 +132,20 @@ def bend() -> None:
 def weight(frames: int = 5) -> None:
     """Per ideal street frame: c₀ solved, and the five segments carrying most of its score."""
     from appdgen.detect.solve import detrend, solve
-    from studies.lookup import swapped
 
     cam = scale_calibration(default_calibration("02"), 0.5)
-    with swapped():
-        det = Detector(cam, library_draws=200)
-        print(f"prior sd of c0: {np.sqrt(det.model.var[0]):.0f}")
-        for i in range(frames):
-            p = edge_points(as_channels(render_ideal(cam, frame_rng(11, i)), 1))
-            d = det.design(p)
-            c0 = solve(d, det.model.var).c[0]
-            t = detrend(np.column_stack([d.y, d.x[:, 0]]), d, np.ones(d.y.size))
-            score = np.bincount(d.seg, t[:, 0] * t[:, 1], d.nseg)
-            top = np.argsort(-np.abs(score))[:5]
-            where = ", ".join(f"{p.length[j]:.0f} px at x {p.centre[j, 0]:.0f}" for j in top)
-            print(f"frame {i}: c0 {c0:+.0f}, {d.nseg} segments, the top five carry {score[top].sum() / score.sum():.2f}"
-                  f" of its score: {where}")
+    det = Detector(cam, library_draws=200)
+    print(f"prior sd of c0: {np.sqrt(det.model.var[0]):.0f}")
+    for i in range(frames):
+        p = edge_points(as_channels(render_ideal(cam, frame_rng(11, i)), 1))
+        d = det.design(p)
+        c0 = solve(d, det.model.var).c[0]
+        t = detrend(np.column_stack([d.y, d.x[:, 0]]), d, np.ones(d.y.size))
+        score = np.bincount(d.seg, t[:, 0] * t[:, 1], d.nseg)
+        top = np.argsort(-np.abs(score))[:5]
+        where = ", ".join(f"{p.length[j]:.0f} px at x {p.centre[j, 0]:.0f}" for j in top)
+        print(f"frame {i}: c0 {c0:+.0f}, {d.nseg} segments, the top five carry {score[top].sum() / score.sum():.2f}"
+              f" of its score: {where}")
 
 
 def main(argv: list[str] | None = None) -> None:

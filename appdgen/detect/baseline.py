@@ -19,7 +19,7 @@ from appdgen.geometry.bend import output_warp
 from appdgen.util.atomic import write_file
 
 FORMAT = "appdgen-detect-baseline"
-VERSION = 3
+VERSION = 4  # 4: fields read with the third-order lookup (a version-3 field was solved with another design)
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,7 +111,7 @@ class Baseline:
             raise AppdgenError(f"{path}: not an appdgen detect baseline (no \"format\": \"{FORMAT}\")")
         if doc.get("version") != VERSION:
             raise AppdgenError(f"{path}: baseline version {doc.get('version')!r}, but this appdgen reads version "
-                               f"{VERSION} (with the camera's map and its frames' spread): save it again with "
+                               f"{VERSION}: save it again with "
                                "appdgen detect --save-baseline")
         try:
             ref = dict(doc["reference"])

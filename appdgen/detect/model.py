@@ -24,7 +24,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from appdgen.calib.calibration import Calibration
@@ -76,7 +75,7 @@ class FieldModel:
         return self.coefs.var(0) + 1e-12
 
     def field_at(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Mean field (N, 2) and components (N, K, 2) at output pixels (u, v): bicubic on the grid, output px."""
+        """Mean field (N, 2) and components (N, K, 2) at output pixels (u, v): Catmull-Rom on the grid, output px."""
         return field_lookup(self.grid_u, self.grid_v, np.concatenate([self.mean[None], self.basis]), u, v)
 
     def field_of(self, c: np.ndarray) -> np.ndarray:
@@ -91,18 +90,43 @@ class FieldModel:
 
 def field_lookup(grid_u: np.ndarray, grid_v: np.ndarray, fields: np.ndarray, u: np.ndarray, v: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Fields (M, gy, gx, 2) on a regular grid, bicubically at points (u, v): first (N, 2) and the rest (N, M-1, 2)."""
+    """Fields (M, gy, gx, 2) on a regular grid, Catmull-Rom at points (u, v): first (N, 2) and the rest (N, M-1, 2),
+    output px; a point off the grid reads its nearest edge."""
+    # Third order on purpose: OpenCV's INTER_CUBIC (a = -0.75) misplaces a belief's rest between 32 px nodes by
+    # ~0.15 px on edge points, more than a segment's bend, and the solve then read large fields far too small
+    # (docs/studies/real-sets.md, 2026-12-07).
     m, gy, gx, _ = fields.shape
-    stack = np.ascontiguousarray(fields.transpose(1, 2, 0, 3).reshape(gy, gx, 2 * m), dtype=np.float32)
-    mx = ((np.asarray(u) - grid_u[0]) / (grid_u[1] - grid_u[0])).astype(np.float32).reshape(1, -1)
-    my = ((np.asarray(v) - grid_v[0]) / (grid_v[1] - grid_v[0])).astype(np.float32).reshape(1, -1)
-    out = np.empty((mx.size, 2 * m), np.float32)
-    for start in range(0, 2 * m, 4):  # remap takes up to 4 channels at once
-        chunk = np.ascontiguousarray(stack[:, :, start:start + 4])
-        res = cv2.remap(chunk, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
-        out[:, start:start + chunk.shape[2]] = res.reshape(mx.size, -1)
-    out = out.astype(np.float64).reshape(-1, m, 2)
+    stack = _ghost_nodes(_ghost_nodes(fields.transpose(1, 2, 0, 3).reshape(gy, gx, 2 * m), 0), 1)
+    iu, wu = _cubic_taps((np.asarray(u, float).ravel() - grid_u[0]) / (grid_u[1] - grid_u[0]), gx)
+    iv, wv = _cubic_taps((np.asarray(v, float).ravel() - grid_v[0]) / (grid_v[1] - grid_v[0]), gy)
+    cols = iu[:, None] + np.arange(4)
+    out = np.zeros((iu.size, 2 * m))
+    for a in range(4):
+        out += wv[:, a, None] * np.einsum("nb,nbc->nc", wu, stack[(iv + a)[:, None], cols])
+    out = out.reshape(-1, m, 2)
     return out[:, 0], out[:, 1:]
+
+
+def _ghost_nodes(values: np.ndarray, axis: int) -> np.ndarray:
+    """Values with one node added at each end of `axis`, on the quadratic through the nearest three."""
+    v = np.moveaxis(values, axis, 0)
+    first = 3.0 * v[0] - 3.0 * v[1] + v[2]
+    last = 3.0 * v[-1] - 3.0 * v[-2] + v[-3]
+    return np.moveaxis(np.concatenate([first[None], v, last[None]]), 0, axis)
+
+
+def _cubic_taps(pos: np.ndarray, nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """First node index (N,) of the ghost-padded grid and Catmull-Rom weights (N, 4) at positions `pos` (node units),
+    clipped to the grid."""
+    # A cubic extrapolated off the grid runs away; points mapped from another rectification (a baseline's, a
+    # simulated belief's) do land there.
+    pos = np.clip(pos, 0.0, nodes - 1.0)
+    cell = np.minimum(np.floor(pos), nodes - 2).astype(np.intp)
+    t = pos - cell
+    x = np.abs(np.stack([t + 1.0, t, 1.0 - t, 2.0 - t], -1))
+    near = (1.5 * x - 2.5) * x * x + 1.0
+    far = ((-0.5 * x + 2.5) * x - 4.0) * x + 2.0
+    return cell, np.where(x <= 1.0, near, far)
 
 
 def field_grid(calib: Calibration, spacing: float = GRID_SPACING) -> tuple[np.ndarray, np.ndarray]:

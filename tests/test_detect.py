@@ -325,7 +325,7 @@ def test_a_gain_one_belief_makes_is_not_clearly_better():
 def test_straight_edges_warped_into_a_belief_read_its_field(truth: Detector, frames, camera: Calibration):
     # The model's field between its grid nodes: REF's edge points put exactly on their lines and moved into a
     # belief's rectification carry that belief's field and nothing else; the solve reads it at its size (OpenCV's
-    # first-order cubic lookup read such fields at 0.04-0.65 of it on the real sets' segments).
+    # first-order cubic lookup read such fields at -0.08 to 0.85 of it on the real sets' segments).
     belief = camera.replace(k1=camera.k1 * 0.7, fx=camera.fx * 1.03)
     det = Detector(belief, cache_dir=truth.cache_dir, library_draws=DRAWS)
     m = det.model

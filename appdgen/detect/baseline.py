@@ -111,8 +111,7 @@ class Baseline:
             raise AppdgenError(f"{path}: not an appdgen detect baseline (no \"format\": \"{FORMAT}\")")
         if doc.get("version") != VERSION:
             raise AppdgenError(f"{path}: baseline version {doc.get('version')!r}, but this appdgen reads version "
-                               f"{VERSION}: save it again with "
-                               "appdgen detect --save-baseline")
+                               f"{VERSION}: save it again with appdgen detect --save-baseline")
         try:
             ref = dict(doc["reference"])
             width, height, model = ref.pop("width"), ref.pop("height"), ref.pop("model")

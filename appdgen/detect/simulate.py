@@ -124,10 +124,11 @@ def fit_map(read: np.ndarray, sd: np.ndarray, truth: np.ndarray, group: np.ndarr
             a, b = _fit(kind, read[~out], truth[~out])
             pred[out] = np.maximum(0.0, a + b * read[out])
         held[kind] = pred
-    errors = {k: float(np.abs(p - truth).mean()) for k, p in held.items()}
+    absolute = {k: np.abs(p - truth) for k, p in held.items()}
+    errors = {k: float(e.mean()) for k, e in absolute.items()}
     kind = KINDS[0]
     for other in KINDS[1:]:
-        if clearly_better(np.abs(held[other] - truth), np.abs(held[kind] - truth), group):
+        if clearly_better(absolute[other], absolute[kind], group):
             kind = other
     a, b = _fit(kind, read, truth)
     resid = held[kind] - truth

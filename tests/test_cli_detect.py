@@ -226,7 +226,7 @@ def damaged(street: Street, baseline: Path, tmp_path: Path, case: str) -> list[s
 
 BAD = {"missing calibration": "none.yaml", "unreadable calibration": "junk.yaml", "wrong camera": "07",
        "no frames": "empty", "frame of another size": "x.png", "bad baseline": "b.json",
-       "foreign baseline": "174x64", "old baseline": "old.json: baseline version 1, but this appdgen reads version 4",
+       "foreign baseline": "174x64", "old baseline": "old.json: baseline version 1, but this appdgen reads version 5",
        "baseline and save-baseline": "--save-baseline",
        "baseline of a perturbed belief": "--set/--perturb", "unknown parameter": "'f=0.02'", "sequence 0": "--sequence",
        "threshold 0": "--threshold", "threshold negative": "--threshold", "unwritable json": "out.json"}

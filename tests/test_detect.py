@@ -183,9 +183,9 @@ def test_baseline_round_trip(truth: Detector, frames, tmp_path, camera: Calibrat
 
 
 @pytest.mark.parametrize("content, problem", [("{", "not a JSON file"), ('{"format": "x"}', "not an appdgen detect"),
-                                              ('{"format": "appdgen-detect-baseline", "version": 4}', "malformed"),
-                                              ('{"format": "appdgen-detect-baseline", "version": 3}',
-                                               "baseline version 3, but this appdgen reads version 4: save it "
+                                              ('{"format": "appdgen-detect-baseline", "version": 5}', "malformed"),
+                                              ('{"format": "appdgen-detect-baseline", "version": 4}',
+                                               "baseline version 4, but this appdgen reads version 5: save it "
                                                "again with appdgen detect --save-baseline")])
 def test_bad_baseline_files_are_one_line_errors(tmp_path, content, problem):
     path = tmp_path / "b.json"

@@ -19,7 +19,7 @@ from appdgen.geometry.bend import output_warp
 from appdgen.util.atomic import write_file
 
 FORMAT = "appdgen-detect-baseline"
-VERSION = 4  # 4: fields read with the third-order lookup (a version-3 field was solved with another design)
+VERSION = 5  # 5: edges localised with less smoothing (EdgeParams.sigma 0.7); 4: the third-order field lookup
 
 
 @dataclass(frozen=True, eq=False)

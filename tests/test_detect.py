@@ -221,13 +221,30 @@ def test_the_spread_terms_join_the_likelihood(truth: Detector, frames):
     both = likelihood(est, m.coefs, m.var, SCENE_FLOOR, spread)
     grid = len(plain.phis)
     assert len(both.phis) == grid + len(SPREAD_SCALES) and np.isnan(both.shapes[grid:]).all()
-    np.testing.assert_allclose(both.log[:grid], plain.log, rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(both.log[:grid] * both.dispersion, plain.log * plain.dispersion, rtol=1e-9, atol=1e-6)
     # draws far from the reading along component 0 only: the largest spread term explains them best
     j, b = robust_information(est)
     read = np.linalg.solve(j + 1e-9 * np.eye(len(b)), b)
     far = np.array([read + 3 * np.sqrt(m.var[0]) * u])
-    assert log_likelihood(j, b, far, spread_terms(m.var, SCENE_FLOOR, spread)[1][-1]) > max(
-        log_likelihood(j, b, far, np.diag(d)) for d in scene_terms(m.var, SCENE_FLOOR)[2])
+    assert log_likelihood(j, b, far, spread_terms(m.var, SCENE_FLOOR, spread)[1][-1])[0] > max(
+        log_likelihood(j, b, far, np.diag(d))[0] for d in scene_terms(m.var, SCENE_FLOOR)[2])
+
+
+def test_a_reading_no_draw_explains_widens_instead_of_collapsing(truth: Detector, frames):
+    est, m = truth.estimate([truth.evidence(f) for f in frames[:2]]), truth.model
+    j, b = robust_information(est)
+    sd = np.sqrt(m.var)
+    for offset, misfit in ((0.0, False), (30.0, True)):
+        read = m.coefs[0] + offset * sd * np.sign(np.arange(len(sd)) % 2 - 0.5)  # a draw, or far from all of them
+        like = likelihood(replace(est, g=est.h @ read), m.coefs, m.var, SCENE_FLOOR)  # b = J · read
+        # brute force: the nearest draw's Mahalanobis distance under the most lenient scene term, over K
+        chi2 = min(float(np.min(np.einsum("ij,jk,ik->i", m.coefs - read, np.linalg.inv(np.linalg.inv(j) + np.diag(d)),
+                                          m.coefs - read))) for d in scene_terms(m.var, SCENE_FLOOR)[2])
+        assert like.dispersion == pytest.approx(max(1.0, chi2 / len(sd)), rel=1e-3)
+        assert (like.dispersion > 10) == misfit
+        w = np.exp(like.log - like.log.max()).sum(0)
+        if misfit:  # tempered: many draws share the weight, not the nearest one alone
+            assert 1.0 / ((w / w.sum()) ** 2).sum() > 10
 
 
 def test_the_model_cache_is_hit(camera: Calibration, cache, truth: Detector):

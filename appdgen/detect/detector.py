@@ -5,7 +5,7 @@ solved for the belief's field model (model) in one robust solve per frame or seq
 weighs that evidence with what a real scene adds to it (errormodel), and the posterior over the sampling prior's
 library gives APPD, bend and parameter offsets with honest sds (posterior). Frames whose edges barely move (a
 hover) cannot tell a scene edge's own curvature from the lens's bend: they say so and, without a baseline, never
-flag.
+flag. Frames whose field no miscalibration explains (blur, low light) say so too, and their ± widens.
 """
 from __future__ import annotations
 
@@ -36,6 +36,10 @@ SURE = 0.95  # p_above at or over this: "miscalibrated"; at or under 1 − SURE:
 #: px: a sequence whose scene edges move less than this (median, normal to themselves) is a hover.
 HOVER_PX = 6.0
 HOVER = "frames barely move: a scene edge's own curvature cannot be told from lens bend"
+#: The likelihood's dispersion (errormodel) at or over this: the edges' field is one no miscalibration explains.
+MISFIT = 2.0
+MISFIT_REASON = ("the edges read a field no miscalibration explains (blur, low light or the scene's own bend;"
+                 " χ² {:.0f}x its expectation): ± widened")
 
 
 @dataclass(frozen=True)
@@ -160,12 +164,15 @@ class Detector:
             return abstention(frames, est.segments, threshold_pct,
                               f"too few straight segments ({est.segments} < {MIN_SEGMENTS})")
         spread = None if baseline is None else baseline.spread_in(self.model, self.belief, self.max_fov)
-        post = posterior(self.model, likelihood(est, self.model.coefs, self.model.var, SCENE_FLOOR, spread),
-                         threshold_pct)
+        like = likelihood(est, self.model.coefs, self.model.var, SCENE_FLOOR, spread)
+        post = posterior(self.model, like, threshold_pct)
         offsets = {n: (float(m), float(s)) for n, m, s in zip(self.model.names, post.offsets, post.offsets_sd,
                                                                            strict=True)}
         hover = frames > 1 and moved < HOVER_PX
-        reason = (HOVER if baseline is not None else f"{HOVER} (no flag without a baseline)") if hover else None
+        reasons = [HOVER if baseline is not None else f"{HOVER} (no flag without a baseline)"] if hover else []
+        if like.dispersion >= MISFIT:
+            reasons.append(MISFIT_REASON.format(like.dispersion))
+        reason = "; ".join(reasons) or None
         appd, appd_sd, p_above, raw, raw_sd = post.appd, post.appd_sd, post.p_above, None, None
         if camera_map and baseline is not None and baseline.camera_map is not None:
             raw, raw_sd = appd, appd_sd

@@ -19,6 +19,9 @@ frames, its points share its own curvature) and scenes add an apparent field of 
   straight edges determine poorly; a term shaped like the prior spends the ± on every direction alike.
 
 The reading is then c_read ~ N(c, (H M⁻¹ H)⁻¹ + D); the posterior is over the library's draws c_i (the prior) and D.
+Where even the most lenient term leaves the nearest draw far outside that model (its χ² above the K it would have:
+blur, low light or a scene's bend beyond PHI_MAX), the model is wrong for these frames and the likelihood is tempered
+by the dispersion χ²/K (a quasi-likelihood): the posterior widens instead of collapsing onto that draw.
 """
 from __future__ import annotations
 
@@ -56,6 +59,7 @@ class Likelihood:
     phis: np.ndarray
     shapes: np.ndarray
     log: np.ndarray
+    dispersion: float = 1.0  # the nearest draw's χ² / K under its most lenient term (at least 1): log is divided by it
 
 
 def robust_information(est: Estimate) -> tuple[np.ndarray, np.ndarray]:
@@ -96,14 +100,18 @@ def likelihood(est: Estimate, coefs: np.ndarray, prior_var: np.ndarray, floor: f
         spread_phi, spread_d = spread_terms(prior_var, floor, spread)
         phi, shape = np.r_[phi, spread_phi], np.r_[shape, np.full(len(spread_d), np.nan)]
         terms.extend(spread_d)
-    return Likelihood(phi, shape, np.array([log_likelihood(j, b, coefs, d) for d in terms]))
+    log, chi2 = zip(*(log_likelihood(j, b, coefs, d) for d in terms), strict=True)
+    dispersion = max(1.0, float(np.min(chi2)) / len(b))
+    return Likelihood(phi, shape, np.array(log) / dispersion, dispersion)
 
 
-def log_likelihood(j: np.ndarray, b: np.ndarray, coefs: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """log N(c_read; c_i, J⁻¹ + D) of each draw c_i up to a constant, from the information J, b = J c_read."""
+def log_likelihood(j: np.ndarray, b: np.ndarray, coefs: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, float]:
+    """log N(c_read; c_i, J⁻¹ + D) of each draw c_i up to a constant, from the information J, b = J c_read, and the
+    nearest draw's χ² (c_i − c_read)ᵀ(J⁻¹ + D)⁻¹(c_i − c_read)."""
     d_inv = np.linalg.inv(d)
     k = np.linalg.solve(d_inv + j, np.column_stack([j, b]))  # (D⁻¹ + J)⁻¹ [J, b]
     s_inv, s_b = j - j @ k[:, :-1], b - j @ k[:, -1]  # (J⁻¹ + D)⁻¹ and its product with the reading
     log_det = np.linalg.slogdet(d_inv + j)[1] + np.linalg.slogdet(d)[1]  # log|D| + log|D⁻¹ + J|
     quad = np.einsum("ij,jk,ik->i", coefs, s_inv, coefs) - 2 * coefs @ s_b - b @ k[:, -1]
-    return -0.5 * (quad + log_det)
+    read_info = b @ np.linalg.lstsq(j, b, rcond=1e-12)[0]  # c_readᵀ J c_read: quad lacks it (J may be singular)
+    return -0.5 * (quad + log_det), float(quad.min() + read_info)

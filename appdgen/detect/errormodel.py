@@ -100,18 +100,18 @@ def likelihood(est: Estimate, coefs: np.ndarray, prior_var: np.ndarray, floor: f
         spread_phi, spread_d = spread_terms(prior_var, floor, spread)
         phi, shape = np.r_[phi, spread_phi], np.r_[shape, np.full(len(spread_d), np.nan)]
         terms.extend(spread_d)
-    log, chi2 = zip(*(log_likelihood(j, b, coefs, d) for d in terms), strict=True)
-    dispersion = max(1.0, float(np.min(chi2)) / len(b))
+    log, nearest = zip(*(log_likelihood(j, b, coefs, d) for d in terms), strict=True)
+    read_info = b @ np.linalg.lstsq(j, b, rcond=1e-12)[0]  # c_readᵀ J c_read, the χ² quad lacks (J may be singular)
+    dispersion = max(1.0, (float(np.min(nearest)) + read_info) / len(b))
     return Likelihood(phi, shape, np.array(log) / dispersion, dispersion)
 
 
 def log_likelihood(j: np.ndarray, b: np.ndarray, coefs: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, float]:
     """log N(c_read; c_i, J⁻¹ + D) of each draw c_i up to a constant, from the information J, b = J c_read, and the
-    nearest draw's χ² (c_i − c_read)ᵀ(J⁻¹ + D)⁻¹(c_i − c_read)."""
+    nearest draw's χ² (c_i − c_read)ᵀ(J⁻¹ + D)⁻¹(c_i − c_read) less c_readᵀ J c_read (the same for every D)."""
     d_inv = np.linalg.inv(d)
     k = np.linalg.solve(d_inv + j, np.column_stack([j, b]))  # (D⁻¹ + J)⁻¹ [J, b]
     s_inv, s_b = j - j @ k[:, :-1], b - j @ k[:, -1]  # (J⁻¹ + D)⁻¹ and its product with the reading
     log_det = np.linalg.slogdet(d_inv + j)[1] + np.linalg.slogdet(d)[1]  # log|D| + log|D⁻¹ + J|
     quad = np.einsum("ij,jk,ik->i", coefs, s_inv, coefs) - 2 * coefs @ s_b - b @ k[:, -1]
-    read_info = b @ np.linalg.lstsq(j, b, rcond=1e-12)[0]  # c_readᵀ J c_read: quad lacks it (J may be singular)
-    return -0.5 * (quad + log_det), float(quad.min() + read_info)
+    return -0.5 * (quad + log_det), float(quad.min())

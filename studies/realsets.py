@@ -6,12 +6,13 @@ and without a baseline from the first frames, scored against the truth.
 
 Per set and baseline: MAE of the windows' APPD readings / the mean predictor's (the mean label of the prior's
 draws), the truth inside 2 sd (coverage, over every belief's windows), true-file windows flagged, beliefs above
-0.5 % flagged (windows), the median sd, and frames/s; the same per frame (every single_stride-th test frame read
-alone: "per_frame", its "windows" the frames read); and the frames to flag a 1 % miscalibration: every belief of
-APPD NEAR_ONE (and the true file) read on the first n test frames pooled, n doubling from the window up to all of
-them, the least n read `miscalibrated` (none: not within the test frames). Evidence is cached per belief under
-OUT/cache (delete it after a change to appdgen/detect/edges.py). Uses the product's public API
-(Detector.evidence, save_baseline, read) and the mean predictor's draws of train.scoring.
+0.5 % flagged (windows), the median sd, the windows whose sd lies below their belief's window-to-window sd of
+readings (sd_below_spread; sd_over_spread the median ratio), and frames/s; the same per frame (every
+single_stride-th test frame read alone: "per_frame", its "windows" the frames read); and the frames to flag a 1 %
+miscalibration: every belief of APPD NEAR_ONE (and the true file) read on the first n test frames pooled, n
+doubling from the window up to all of them, the least n read `miscalibrated` (none: not within the test frames).
+Evidence is cached per belief under OUT/cache (delete it after a change to appdgen/detect/edges.py). Uses the
+product's public API (Detector.evidence, save_baseline, read) and the mean predictor's draws of train.scoring.
 """
 from __future__ import annotations
 
@@ -166,7 +167,8 @@ def frames_to_flag(result: dict, with_baseline: bool) -> dict:
 
 
 def scores(result: dict, with_baseline: bool) -> dict:
-    """MAE / the mean predictor, coverage, flags under the truth and above the threshold, median sd."""
+    """MAE / the mean predictor, coverage, flags under the truth and above the threshold, median sd, and the
+windows whose sd is below their belief's window-to-window sd of readings (and the median ratio of the two)."""
     rows = [r for r in result["rows"] if r["baseline"] == with_baseline and r["appd"] is not None]
     truth = np.array([r["truth"] for r in rows])
     read = np.array([r["appd"] for r in rows])
@@ -174,12 +176,17 @@ def scores(result: dict, with_baseline: bool) -> dict:
     flag = np.array([r["verdict"] == "miscalibrated" for r in rows])
     true_file = truth == 0
     above = truth > DEFAULT_THRESHOLD_PCT
+    belief = np.array([r["belief"] for r in rows])
+    spread = np.array([read[belief == k].std(ddof=1) if (belief == k).sum() > 1 else np.nan for k in belief])
     return {"set": result["set"], "baseline": with_baseline, "windows": len(rows),
             "mae_vs_mean": float(np.abs(read - truth).mean() / np.abs(result["mean"] - truth).mean()),
             "coverage": float((np.abs(read - truth) <= 2 * sd).mean()),
             "true_flagged": f"{int(flag[true_file].sum())}/{int(true_file.sum())}",
             "above_flagged": f"{int(flag[above].sum())}/{int(above.sum())}",
-            "median_sd": float(np.median(sd)), "true_reads": [round(float(x), 2) for x in read[true_file]]}
+            "median_sd": float(np.median(sd)),
+            "sd_below_spread": f"{int((sd < spread).sum())}/{int(np.isfinite(spread).sum())}",
+            "sd_over_spread": float(np.nanmedian(sd / spread)),
+            "true_reads": [round(float(x), 2) for x in read[true_file]]}
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -25,6 +25,14 @@ def test_scores_count_coverage_flags_and_the_mean_predictor_by_hand() -> None:
     assert s["median_sd"] == pytest.approx(0.1) and s["true_reads"] == [0.1, 0.6]
 
 
+def test_sd_below_spread_counts_windows_narrower_than_their_beliefs_scatter() -> None:
+    rows = [row(0.5, 0.2, 0.1, "uncertain"), row(0.5, 0.4, 0.3, "uncertain"),  # reads' sd 0.1414: one below
+            dict(row(0.7, 0.7, 0.01, "miscalibrated"), belief=1)]  # a single window has no scatter: not counted
+    s = scores({"set": "toy", "mean": 0.4, "rows": rows}, with_baseline=True)
+    assert s["sd_below_spread"] == "1/2"
+    assert s["sd_over_spread"] == pytest.approx((0.1 + 0.3) / 2 / 0.2 * 2 ** 0.5)
+
+
 def test_pool_sizes_double_from_the_window_to_every_frame() -> None:
     assert pool_sizes(50, 200) == [50, 100, 200]
     assert pool_sizes(10, 60) == [10, 20, 40, 60]

@@ -168,7 +168,7 @@ def frames_to_flag(result: dict, with_baseline: bool) -> dict:
 
 def scores(result: dict, with_baseline: bool) -> dict:
     """MAE / the mean predictor, coverage, flags under the truth and above the threshold, median sd, and the
-windows whose sd is below their belief's window-to-window sd of readings (and the median ratio of the two)."""
+    windows whose sd is below their belief's window-to-window sd of readings (and the median ratio of the two)."""
     rows = [r for r in result["rows"] if r["baseline"] == with_baseline and r["appd"] is not None]
     truth = np.array([r["truth"] for r in rows])
     read = np.array([r["appd"] for r in rows])
@@ -177,7 +177,8 @@ windows whose sd is below their belief's window-to-window sd of readings (and th
     true_file = truth == 0
     above = truth > DEFAULT_THRESHOLD_PCT
     belief = np.array([r["belief"] for r in rows])
-    spread = np.array([read[belief == k].std(ddof=1) if (belief == k).sum() > 1 else np.nan for k in belief])
+    scatter = {k: read[belief == k].std(ddof=1) if (belief == k).sum() > 1 else np.nan for k in set(belief.tolist())}
+    spread = np.array([scatter[k] for k in belief.tolist()])
     return {"set": result["set"], "baseline": with_baseline, "windows": len(rows),
             "mae_vs_mean": float(np.abs(read - truth).mean() / np.abs(result["mean"] - truth).mean()),
             "coverage": float((np.abs(read - truth) <= 2 * sd).mean()),
